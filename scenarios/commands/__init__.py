@@ -1,0 +1,1 @@
+"""Subcommands of ``horizon-nav``: one module each, discovered by :mod:`scenarios.cli`."""
