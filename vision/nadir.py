@@ -1,0 +1,322 @@
+"""Direction of a spherical body from the rays of its limb: Earth nadir (known cone angle) and
+Sun/Moon (unknown cone angle), 003 §2.4-2.6, §3.3-3.4, §5, on the unit sphere of 000 §2.2-2.4.
+
+Cone equation on the unit sphere
+--------------------------------
+Every limb ray p lies on the cone of half-angle alpha about the body direction e
+(003 eq. (3)): ``p^T e = cos(alpha) |p|``. With *unit* rays p_j (000 eq. (3): the edge pixels
+mapped onto the unit sphere, which stays well conditioned for rays at or beyond 90 deg from the
+optical axis, where 003's z = f plane points blow up) the m equations are linear in e::
+
+    H e = cos(alpha) 1,    H = [p_1^T; ...; p_m^T]       (003 eqs. (22)-(23) with |p_j| = 1)
+
+and the least-squares solution (003 eq. (24)) is computed with ``numpy.linalg.lstsq`` (SVD), not
+the normal equations.
+
+Unknown alpha (Sun, Moon; 003 §5): the equations are linear in ``n = e / cos(alpha)``::
+
+    H n = 1,    e = n / |n|,    cos(alpha) = 1 / |n|
+
+so the direction and the apparent radius come out of one linear solve (a blooming Sun gives a
+larger alpha but the same direction, 003 §5). Rays must not lie on a great circle
+(alpha = 90 deg, n infinite).
+
+Note: for the unconstrained linear fit the *direction* of the known-alpha estimate does not depend
+on alpha at all (``lstsq(H, c 1) = c lstsq(H, 1)``): the known angle only scales the solution,
+which is why 003 §4 finds the estimate insensitive to the sphere's scale. ``method="constrained"``
+uses alpha: it minimises |H e - cos(alpha) 1|^2 subject to |e| = 1 (a trust-region boundary
+problem, solved exactly with the 3x3 eigen-decomposition and the secular equation), which is more
+accurate on short arcs.
+
+Residuals (for choosing among candidate edges; smallest wins, 003 §3.4)
+-----------------------------------------------------------------------
+- `angle_residual`: mean squared angular distance of the rays from the cone, [rad^2]:
+  mean_j (acos(p_j^T e) - alpha)^2. Exact geometric distance on the sphere, valid at any theta.
+- `pframe_residual`: 003 eqs. (25)-(28): the z = f plane points are rotated/shifted into the
+  principal-axes frame of the estimated conic and compared along x_p. Only rays with z > 0 take
+  part. f = 1 (normalised plane) unless given.
+
+Mirrored nadir (002 §3): a short limb arc is also close to a cone of the same alpha around the
+mirror image of e across the arc; `earth_side_check` scores a candidate against rays known to see
+the body (or space) so the caller can reject the wrong side.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "ConeFit",
+    "nadir_from_horizon",
+    "direction_and_radius",
+    "constrained_cone_fit",
+    "conic_type",
+    "angle_residuals",
+    "angle_residual",
+    "pframe_residual",
+    "earth_side_check",
+    "mirrored_direction",
+    "horizon_alpha",
+]
+
+
+@dataclass(frozen=True)
+class ConeFit:
+    """Result of a cone fit.
+
+    Attributes
+    ----------
+    e_c : (3,) unit direction of the body centre in the camera frame (003 eq. (24), normalised).
+    alpha : cone half-angle [rad] (given, or estimated for the Sun/Moon).
+    n : (3,) the raw least-squares solution (e/cos(alpha) for ``H n = 1``, e for ``H e = c 1``);
+        the covariance of `vision.covariance` is that of this vector.
+    rhs : right-hand side value used in ``H n = rhs`` (cos(alpha) or 1).
+    discriminant : 003 eq. (9), sin^2(alpha) - e_z^2 (> 0 hyperbola, < 0 ellipse).
+    conic : "ellipse", "parabola" or "hyperbola" (003 eqs. (8)-(11), Table 1).
+    residual : mean squared angular distance of the rays from the cone [rad^2] (`angle_residual`).
+    m : number of rays used.
+    method : "linear", "constrained" or "free-alpha".
+    """
+
+    e_c: np.ndarray
+    alpha: float
+    n: np.ndarray
+    rhs: float
+    discriminant: float
+    conic: str
+    residual: float
+    m: int
+    method: str
+
+
+def horizon_alpha(height: float, radius: float, atmosphere: float = 0.0) -> float:
+    """Earth cone half-angle alpha = arcsin((r + d)/(r + H)), 003 eq. (5) [rad]."""
+    s = (radius + atmosphere) / (radius + height)
+    if not 0.0 < s <= 1.0:
+        raise ValueError(f"horizon_alpha: (r + d)/(r + H) = {s}; expected in (0, 1] "
+                         f"(height {height} m, radius {radius} m, atmosphere {atmosphere} m)")
+    return math.asin(s)
+
+
+def conic_type(e_c: np.ndarray, alpha: float, tol: float = 1e-12) -> tuple[float, str]:
+    """Discriminant Delta = sin^2(alpha) - e_z^2 (003 eq. (9)) and the conic it means (Table 1)."""
+    delta = math.sin(alpha) ** 2 - float(e_c[2]) ** 2
+    kind = "parabola" if abs(delta) <= tol else ("hyperbola" if delta > 0 else "ellipse")
+    return delta, kind
+
+
+def _check_rays(rays_c: np.ndarray, minimum: int = 3) -> np.ndarray:
+    H = np.asarray(rays_c, dtype=float)
+    if H.ndim != 2 or H.shape[1] != 3:
+        raise ValueError(f"rays_c must have shape (m, 3), got {H.shape}")
+    if H.shape[0] < minimum:
+        raise ValueError(f"need at least {minimum} rays, got {H.shape[0]}")
+    if not np.all(np.isfinite(H)):
+        raise ValueError("rays_c contains NaN/inf (pixels outside the camera's valid range?)")
+    norm = np.linalg.norm(H, axis=1)
+    if np.any(norm == 0):
+        raise ValueError("rays_c contains zero-length rays")
+    return H / norm[:, None]
+
+
+def angle_residuals(rays_c: np.ndarray, e_c: np.ndarray, alpha: float) -> np.ndarray:
+    """Signed angular distance of each unit ray from the cone, acos(p^T e) - alpha [rad]."""
+    c = np.clip(np.asarray(rays_c) @ np.asarray(e_c), -1.0, 1.0)
+    return np.arccos(c) - alpha
+
+
+def angle_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float) -> float:
+    """Mean squared angular distance of the rays from the cone (e_c, alpha) [rad^2]."""
+    r = angle_residuals(rays_c, e_c, alpha)
+    return float(np.mean(r * r))
+
+
+def pframe_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float, f: float = 1.0,
+                    mean: bool = False) -> float:
+    """Residual of 003 eqs. (25)-(28) in the principal-axes frame of the estimated conic.
+
+    The rays with z > 0 are put on the plane z = f (p_i = f [x/z, y/z]), rotated so x_p is along
+    [e_x, e_y] and shifted by f e_z rho / A' (the conic centre, rho = |[e_x, e_y]|), then
+    ``delta = sum_j (|x_p,j| - sqrt(-C'/A' y_p,j^2 - F'/A'))^2`` (eq. (28)) with
+    A' = rho^2 - cos^2(alpha), C' = -cos^2(alpha), F' = -f^2 (1 - cos^2 alpha) cos^2 alpha / A'
+    (eq. (26)). For ellipses the square-root argument can go negative beyond the minor axis: it is
+    clipped at 0 (003 designs this residual for flat hyperbolae). Undefined when e is along the
+    optical axis (rho = 0) or for a parabola (A' = 0): returns inf. ``mean=True`` divides by the
+    number of rays used.
+    """
+    P = np.asarray(rays_c, dtype=float)
+    P = P[P[:, 2] > 0.0]
+    ex, ey, ez = (float(v) for v in e_c)
+    rho = math.hypot(ex, ey)
+    c2 = math.cos(alpha) ** 2
+    A1 = rho * rho - c2
+    if P.shape[0] == 0 or rho < 1e-12 or abs(A1) < 1e-15:
+        return math.inf
+    C1 = -c2
+    F1 = -f * f * (1.0 - c2) * c2 / A1
+    xi = f * P[:, 0] / P[:, 2]
+    yi = f * P[:, 1] / P[:, 2]
+    xp = (ex * xi + ey * yi) / rho + f * ez * rho / A1
+    yp = (-ey * xi + ex * yi) / rho
+    arg = np.maximum(-C1 / A1 * yp * yp - F1 / A1, 0.0)
+    d = np.abs(xp) - np.sqrt(arg)
+    total = float(np.sum(d * d))
+    return total / P.shape[0] if mean else total
+
+
+def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: str) -> ConeFit:
+    e = n / np.linalg.norm(n)
+    delta, kind = conic_type(e, alpha)
+    return ConeFit(e_c=e, alpha=float(alpha), n=n, rhs=float(rhs), discriminant=delta, conic=kind,
+                   residual=angle_residual(H, e, alpha), m=H.shape[0], method=method)
+
+
+def constrained_cone_fit(H: np.ndarray, c: float) -> np.ndarray:
+    """argmin_{|e| = 1} |H e - c 1|^2 (global minimum), H with unit rows.
+
+    Lagrange: (N - lam I) e = b with N = H^T H, b = c H^T 1, lam <= lam_min(N) for the global
+    minimum (trust-region theory). In N's eigenbasis |e(lam)|^2 = sum b_i^2 / (lam_i - lam)^2 is
+    increasing on (-inf, lam_min), so the root of 1/|e(lam)| - 1 is found by safeguarded Newton
+    in the bracket [lam_min - |b|, lam_min). The "hard case" (b orthogonal to the smallest
+    eigenvector) adds the eigenvector to reach unit length.
+    """
+    N = H.T @ H
+    w, Q = np.linalg.eigh(N)
+    b = Q.T @ (c * H.sum(axis=0))
+    lam_min = w[0]
+    bn = float(np.linalg.norm(b))
+    lo, hi = lam_min - bn, lam_min
+    scale = max(abs(w[-1]), 1.0)
+
+    def norm_e(lam: float) -> tuple[float, float]:
+        d = w - lam
+        q = b / d
+        s = float(np.sqrt(q @ q))
+        ds = float((q @ (q / d)) / s)  # d|e|/dlam
+        return s, ds
+
+    if abs(b[0]) <= 1e-14 * max(bn, 1e-300):
+        # hard case: check whether lam = lam_min already gives |e| <= 1
+        q = np.where(np.arange(3) == 0, 0.0, b / np.where(w - lam_min == 0, 1.0, w - lam_min))
+        sq = float(q @ q)
+        if sq <= 1.0:
+            q[0] = math.sqrt(1.0 - sq)
+            return Q @ q
+    lam = lo
+    for _ in range(200):
+        s, ds = norm_e(lam)
+        phi = 1.0 / s - 1.0  # increasing -> 0 at the root; phi >= 0 left of it
+        if phi > 0:
+            lo = lam
+        else:
+            hi = lam
+        if abs(phi) < 1e-15:
+            break
+        dphi = -ds / (s * s)
+        new = lam - phi / dphi if dphi != 0 else 0.5 * (lo + hi)
+        if not lo < new < hi:
+            new = 0.5 * (lo + hi)
+        if abs(new - lam) <= 1e-16 * scale:
+            lam = new
+            break
+        lam = new
+    e = Q @ (b / (w - lam))
+    return e / np.linalg.norm(e)
+
+
+def nadir_from_horizon(rays_c: np.ndarray, alpha: float, method: str = "constrained") -> ConeFit:
+    """Earth nadir from horizon rays with known cone half-angle alpha.
+
+    Parameters
+    ----------
+    rays_c : (m, 3) horizon rays in the camera frame (any length; normalised here), m >= 3.
+    alpha : cone half-angle [rad], 003 eq. (5) (`horizon_alpha`), 0 < alpha < pi/2.
+    method : "constrained" (default: |e| = 1 enforced, `constrained_cone_fit`, uses alpha) or
+        "linear" (003 eq. (24) with unit rays, solved by lstsq; its direction does not depend on
+        alpha and it is ill-conditioned on short arcs: with integer-rounded pixels of a 1920x1080
+        94.4 deg fisheye it was off by degrees on 100-400 px arcs where "constrained" stayed
+        below 0.02 deg, see tests/test_nadir.py).
+
+    Returns
+    -------
+    ConeFit with e_c normalised, the conic type (003 eqs. (8)-(11)) and the angle residual.
+    """
+    if not 0.0 < alpha < math.pi / 2:
+        raise ValueError(f"nadir_from_horizon: alpha = {alpha} rad; expected 0 < alpha < pi/2")
+    H = _check_rays(rays_c)
+    c = math.cos(alpha)
+    if method == "linear":
+        n, _, rank, _ = np.linalg.lstsq(H, np.full(H.shape[0], c), rcond=None)
+        if rank < 3:
+            raise ValueError("nadir_from_horizon: degenerate ray set (rank < 3: rays on a great "
+                             "circle or fewer than 3 distinct rays)")
+    elif method == "constrained":
+        n = constrained_cone_fit(H, c)
+    else:
+        raise ValueError(f"nadir_from_horizon: method {method!r}; expected 'linear' or 'constrained'")
+    if not np.all(np.isfinite(n)) or np.linalg.norm(n) == 0:
+        raise ValueError("nadir_from_horizon: degenerate ray set (rays on a plane through the origin)")
+    return _make_fit(H, n, c, alpha, method)
+
+
+def direction_and_radius(rays_c: np.ndarray) -> ConeFit:
+    """Sun/Moon direction and apparent cone half-angle together (003 §5; alpha unknown).
+
+    Solves ``H n = 1`` by least squares; e = n/|n|, alpha = arccos(1/|n|) (0 < alpha < 90 deg;
+    a blooming disc gives a larger alpha, not a different direction). Three rays determine it
+    exactly. Raises ValueError when the rays lie on a great circle (|n| < 1 cannot happen for a
+    cone with alpha < 90 deg; it signals a non-conical ray set).
+    """
+    H = _check_rays(rays_c)
+    n, _, rank, _ = np.linalg.lstsq(H, np.ones(H.shape[0]), rcond=None)
+    if rank < 3:
+        raise ValueError("direction_and_radius: degenerate ray set (rank < 3: rays on a great "
+                         "circle or fewer than 3 distinct rays)")
+    nn = float(np.linalg.norm(n))
+    if not np.isfinite(nn) or nn < 1.0:
+        raise ValueError(f"direction_and_radius: |n| = {nn:.6g} < 1: the rays do not lie on a cone "
+                         f"with half-angle below 90 deg")
+    return _make_fit(H, n, 1.0, math.acos(1.0 / nn), "free-alpha")
+
+
+def mirrored_direction(e_c: np.ndarray, rays_c: np.ndarray) -> np.ndarray:
+    """Mirror image of e across the great-circle plane that best fits the arc (002 §3).
+
+    The plane through the origin closest to the rays has the normal of the smallest right
+    singular vector of H; the mirror e' = e - 2 (e.u) u is the other local minimum of the
+    unit-constrained fit for a short, nearly straight arc.
+    """
+    H = _check_rays(rays_c, minimum=2)
+    u = np.linalg.svd(H, full_matrices=False)[2][-1]
+    e = np.asarray(e_c, dtype=float)
+    return e - 2.0 * (e @ u) * u
+
+
+def earth_side_check(e_c: np.ndarray, alpha: float, body_rays: np.ndarray | None = None,
+                     space_rays: np.ndarray | None = None, margin: float = 0.0) -> float:
+    """Fraction of reference rays on their expected side of the cone (e_c, alpha) (002 §3).
+
+    ``body_rays``: rays of pixels known to see the body (bright side of the edge, e.g. a few
+    pixels a short step inside the edge); they must satisfy angle(p, e) < alpha - margin.
+    ``space_rays``: rays known to see space; angle(p, e) > alpha + margin. Returns the fraction
+    of all given rays that agree (1.0 = consistent, ~0 = mirrored nadir / wrong side). The
+    caller compares candidates (e.g. e and `mirrored_direction(e, rays)`) and keeps the best.
+    """
+    e = np.asarray(e_c, dtype=float)
+    e = e / np.linalg.norm(e)
+    good, total = 0, 0
+    if body_rays is not None:
+        B = _check_rays(body_rays, minimum=1)
+        ang = np.arccos(np.clip(B @ e, -1, 1))
+        good += int(np.count_nonzero(ang < alpha - margin))
+        total += B.shape[0]
+    if space_rays is not None:
+        S = _check_rays(space_rays, minimum=1)
+        ang = np.arccos(np.clip(S @ e, -1, 1))
+        good += int(np.count_nonzero(ang > alpha + margin))
+        total += S.shape[0]
+    if total == 0:
+        raise ValueError("earth_side_check: give body_rays and/or space_rays")
+    return good / total
