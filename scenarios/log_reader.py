@@ -1,0 +1,612 @@
+"""Read horizon-nav flight logs (MCAP, ROS 2 / CDR) into numpy arrays, fast and defensively.
+
+``read_log(path) -> FlightLog``: every topic as a ``Series`` of arrays (``log.imu.t_ns``,
+``log.imu.gyro``, ...), images on demand, the metadata and the list of topics. Format:
+docs/log-format.md.
+
+Fast path: the file is scanned record by record by a numba kernel (``scenarios._mcap_scan``), chunks
+are decompressed one at a time, the payloads of each channel are gathered into a byte matrix and
+decoded column-wise with the vectorised CDR codec ``scenarios.logformat.Layout``. Any ROS 2 schema
+without nested-message sequences takes this path (for foreign schemas of the same name the fields are
+decoded as the schema says); ``tf2_msgs/TFMessage`` and other schemas go through the reference
+decoder of ``mcap_ros2`` (``log.tf_static``, ``log.other``).
+
+Problems in the file are reported with ``warnings.warn(..., LogWarning)`` and collected in
+``log.issues``; the reader goes on with what it can read:
+
+* truncated file / damaged chunk: every complete message before the damage is kept; the warning names
+  the file and the last good time;
+* unknown schema (not ROS 2 or not decodable): warning naming the topic; the topic is skipped;
+* stamps out of order on a topic: sorted (stable) by time, warning with the first offending time;
+  duplicate stamps on a topic: the first message kept, the others dropped, warning with the first time;
+* NaN in a float field: kept, warning naming the topic, the first time and the count;
+* header.stamp different from the MCAP log_time: warning (log_time is used).
+
+A file that is not MCAP at all (or unreadable) raises ``LogFormatError`` (a ``UserError``) naming it.
+"""
+from __future__ import annotations
+
+import struct
+import warnings
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from . import logformat as lf
+from ._mcap_scan import OP_MESSAGE, MESSAGE_HEADER, gather_rows, scan_records
+from .errors import UserError
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_CHUNK, OP_METADATA, OP_DATA_END = 1, 2, 3, 4, 6, 12, 15
+IMAGE_TYPE = "sensor_msgs/CompressedImage"
+
+
+class LogWarning(UserWarning):
+    """A problem in a log file that the reader worked around (see module docstring)."""
+
+
+class LogFormatError(UserError):
+    """The file cannot be read as an MCAP log at all."""
+
+
+def format_time(t_ns: int) -> str:
+    """int ns since the Unix epoch -> ``2019-06-13T02:21:00.050000000Z`` (for messages)."""
+    t_ns = int(t_ns)
+    s, ns = divmod(t_ns, 1_000_000_000)
+    try:
+        return datetime.fromtimestamp(s, timezone.utc).strftime("%Y-%m-%dT%H:%M:%S") + f".{ns:09d}Z"
+    except (OverflowError, OSError, ValueError):
+        return f"{t_ns} ns"
+
+
+# --------------------------------------------------------------------------------------------
+# Result types
+# --------------------------------------------------------------------------------------------
+class Series:
+    """Messages of one topic as arrays: ``t_ns`` (N,) int64 (log_time = header.stamp, sorted) and one
+    attribute per field (see docs/log-format.md, "Reader API", for the names and shapes)."""
+
+    def __init__(self, topic: str, schema: str, t_ns: np.ndarray, fields: dict):
+        self.topic = topic
+        self.schema = schema
+        self.t_ns = t_ns
+        self.fields = fields
+
+    def __getattr__(self, name):
+        fields = self.__dict__.get("fields", {})
+        if name in fields:
+            return fields[name]
+        raise AttributeError(f"topic {self.__dict__.get('topic')} has no field {name!r} "
+                             f"(fields: {sorted(fields)})")
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def __repr__(self) -> str:
+        return f"Series({self.topic!r}, {self.schema}, n={len(self)}, fields={sorted(self.fields)})"
+
+
+class ImageStream:
+    """Compressed images of one camera, read on demand: ``t_ns`` (N,), ``len()``, ``stream[i]`` ->
+    JPEG bytes (``format[i]`` the ROS ``format`` string)."""
+
+    def __init__(self, topic: str, reader: "_Reader", t_ns, locations):
+        self.topic = topic
+        self.t_ns = t_ns
+        self._reader = reader
+        self._loc = locations  # (N, 3) int64: segment, offset, length
+        self._format: list[str] | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def _decode(self, i):
+        seg, off, ln = (int(x) for x in self._loc[i])
+        buf = self._reader.segment(seg)
+        row = np.frombuffer(buf, np.uint8, count=ln, offset=off).reshape(1, ln)
+        vals, ok = lf.known_layout(IMAGE_TYPE).decode(row, np.array([ln]))
+        if not ok[0]:
+            raise LogFormatError(f"{self._reader.path}: {self.topic} message {i} is damaged")
+        return vals
+
+    def __getitem__(self, i: int) -> bytes:
+        return self._decode(i)["data"][0].tobytes()
+
+    def format(self, i: int) -> str:
+        return str(self._decode(i)["format"][0])
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+
+@dataclass
+class Transform:
+    """A static transform: child frame pose in the parent frame; ``q`` maps child vectors into the
+    parent ([x, y, z, w]), ``translation`` the child origin in the parent [m]."""
+    parent: str
+    child: str
+    translation: np.ndarray
+    q: np.ndarray
+    t_ns: int
+
+
+@dataclass
+class CameraLog:
+    """Topics of camera k: ``info`` (CameraInfo Series), ``vectors``, ``truth``, ``images``."""
+    k: int
+    info: Series | None = None
+    vectors: Series | None = None
+    truth: Series | None = None
+    images: ImageStream | None = None
+
+
+@dataclass
+class TopicInfo:
+    topic: str
+    schema: str
+    message_encoding: str
+    message_count: int
+
+
+@dataclass
+class FlightLog:
+    """Everything read from one log. ``series`` maps topic -> Series; the properties name the
+    horizon-nav topics (None when absent)."""
+    path: Path
+    metadata: dict[str, dict[str, str]]
+    topics: dict[str, TopicInfo]
+    series: dict[str, Series] = field(default_factory=dict)
+    images: dict[int, ImageStream] = field(default_factory=dict)
+    tf_static: dict[str, Transform] = field(default_factory=dict)
+    other: dict[str, tuple[np.ndarray, list]] = field(default_factory=dict)
+    issues: list[str] = field(default_factory=list)
+
+    @property
+    def info(self) -> dict[str, str]:
+        """The ``horizon-nav`` metadata record (scenario, seed, software_version, liftoff_utc_ns, kind)."""
+        return self.metadata.get("horizon-nav", {})
+
+    @property
+    def complete(self) -> bool | None:
+        """True for a log closed normally, False for a finalised partial log, None when the status
+        record is missing (truncated file or another writer)."""
+        st = self.metadata.get("horizon-nav.status")
+        return None if st is None else st.get("complete") == "true"
+
+    imu = property(lambda self: self.series.get(lf.TOPIC_IMU))
+    imu_increment = property(lambda self: self.series.get(lf.TOPIC_IMU_INCREMENT))
+    gps = property(lambda self: self.series.get(lf.TOPIC_GPS))
+    truth = property(lambda self: self.series.get(lf.TOPIC_TRUTH))
+    measurements = property(lambda self: self.series.get(lf.TOPIC_MEASUREMENTS))
+
+    @property
+    def nav(self) -> dict[str, Series]:
+        """{"forward"|"smoothed"|"ins_unaided": Series} for the NavSolution topics present."""
+        return {t.rsplit("/", 1)[1]: self.series[t] for t in lf.NAV_TOPICS if t in self.series}
+
+    @property
+    def cameras(self) -> dict[int, CameraLog]:
+        out: dict[int, CameraLog] = {}
+        for topic, s in self.series.items():
+            cam = lf.parse_camera_topic(topic)
+            if cam:
+                c = out.setdefault(cam[0], CameraLog(cam[0]))
+                setattr(c, {"camera_info": "info", "vectors": "vectors", "truth": "truth"}[cam[1]], s)
+        for k, im in self.images.items():
+            out.setdefault(k, CameraLog(k)).images = im
+        return dict(sorted(out.items()))
+
+
+# --------------------------------------------------------------------------------------------
+# Record parsing helpers
+# --------------------------------------------------------------------------------------------
+class _Body:
+    """Sequential little-endian reader of one record body (raises struct.error/ValueError when short)."""
+
+    def __init__(self, data: bytes):
+        self.d = data
+        self.p = 0
+
+    def _take(self, n):
+        if self.p + n > len(self.d):
+            raise ValueError("record too short")
+        b = self.d[self.p:self.p + n]
+        self.p += n
+        return b
+
+    def u16(self):
+        return struct.unpack("<H", self._take(2))[0]
+
+    def u32(self):
+        return struct.unpack("<I", self._take(4))[0]
+
+    def u64(self):
+        return struct.unpack("<Q", self._take(8))[0]
+
+    def string(self):
+        return bytes(self._take(self.u32())).decode("utf-8", "replace")
+
+    def bytes_(self, n):
+        return bytes(self._take(n))
+
+    def str_map(self):
+        end = self.u32() + self.p
+        out = {}
+        while self.p < end:
+            k = self.string()
+            out[k] = self.string()
+        return out
+
+
+class _Reader:
+    def __init__(self, path: Path, data: bytes):
+        self.path = path
+        self.data = data
+        self.chunks: list[tuple[int, int, str, int]] = []  # (records offset, length, compression, size)
+        self._cache: tuple[int, bytes] | None = None
+        self.issues: list[str] = []
+
+    def warn(self, msg: str) -> None:
+        self.issues.append(msg)
+        warnings.warn(msg, LogWarning, stacklevel=4)
+
+    def decompress(self, i: int) -> bytes:
+        off, ln, comp, size = self.chunks[i]
+        raw = self.data[off:off + ln]
+        if comp == "":
+            return bytes(raw)
+        if comp == "zstd":
+            import zstandard
+            return zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
+        if comp == "lz4":
+            import lz4.frame
+            return lz4.frame.decompress(raw)
+        raise ValueError(f"unsupported chunk compression {comp!r}")
+
+    def segment(self, seg: int) -> bytes:
+        """Segment -1 is the file itself (top-level messages); i >= 0 the decompressed chunk i."""
+        if seg < 0:
+            return self.data
+        if self._cache is None or self._cache[0] != seg:
+            self._cache = (seg, self.decompress(seg))
+        return self._cache[1]
+
+
+# --------------------------------------------------------------------------------------------
+# read_log
+# --------------------------------------------------------------------------------------------
+def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
+    """Read a horizon-nav MCAP log.
+
+    Parameters
+    ----------
+    path : the ``.mcap`` file.
+    topics : optional collection of topic names to decode (default all); others are only listed.
+    include_images : keep an ``ImageStream`` per camera (images are decoded on demand either way).
+
+    Returns
+    -------
+    FlightLog. Problems are warned about (``LogWarning``) and listed in ``log.issues``.
+
+    Raises
+    ------
+    LogFormatError : the file cannot be opened or is not MCAP.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise LogFormatError(f"{path}: cannot read log ({e.strerror or e})") from None
+    if len(data) < 8 or data[:8] != MAGIC:
+        raise LogFormatError(f"{path}: not an MCAP file (the first 8 bytes are not the MCAP magic)")
+    rd = _Reader(path, data)
+    buf = np.frombuffer(data, np.uint8)
+    want = None if topics is None else set(topics)
+
+    schemas: dict[int, tuple[str, str, bytes]] = {}
+    channels: dict[int, tuple[str, int, str]] = {}
+    metadata: dict[str, dict[str, str]] = {}
+    # per channel: list of (segment, offsets, lengths, log_times) or gathered (rows, lengths, log_times)
+    raw: dict[int, list] = {}
+    last_good = [None]  # last log_time of a complete message
+
+    def handle_meta_records(b, ops, offs, lens, where):
+        for i in np.flatnonzero((ops == OP_SCHEMA) | (ops == OP_CHANNEL) | (ops == OP_METADATA)):
+            body = _Body(b[int(offs[i]):int(offs[i]) + int(lens[i])])
+            try:
+                if ops[i] == OP_SCHEMA:
+                    sid = body.u16()
+                    name, enc = body.string(), body.string()
+                    schemas[sid] = (name, enc, body.bytes_(body.u32()))
+                elif ops[i] == OP_CHANNEL:
+                    cid, sid = body.u16(), body.u16()
+                    channels[cid] = (body.string(), sid, body.string())
+                else:
+                    name = body.string()
+                    metadata[name] = body.str_map()
+            except (ValueError, struct.error):
+                rd.warn(f"{path}: damaged record (opcode {int(ops[i])}) in {where}; skipped")
+
+    def handle_messages(seg, b, ops, offs, lens, chans, logts):
+        m = (ops == OP_MESSAGE) & (chans >= 0)
+        if not m.any():
+            return
+        idx = np.flatnonzero(m)
+        ch, lt = chans[idx], logts[idx]
+        last_good[0] = int(lt.max()) if last_good[0] is None else max(last_good[0], int(lt.max()))
+        for c in np.unique(ch):
+            sel = idx[ch == c]
+            o = offs[sel] + MESSAGE_HEADER
+            ln = lens[sel] - MESSAGE_HEADER
+            c = int(c)
+            raw.setdefault(c, []).append((seg, b, o, ln, logts[sel]))
+
+    ops, offs, lens, chans, logts, stop = scan_records(buf, 8, len(buf))
+    # a complete file ends with the Footer record followed by the magic
+    end_ok = (stop == len(buf) - 8 and data[-8:] == MAGIC and len(ops) and ops[-1] == OP_FOOTER)
+    handle_meta_records(data, ops, offs, lens, "the file")
+    handle_messages(-1, buf, ops, offs, lens, chans, logts)
+    for i in np.flatnonzero(ops == OP_CHUNK):
+        body = _Body(data[int(offs[i]):int(offs[i]) + min(int(lens[i]), 4096)])
+        try:
+            body.u64(), body.u64()
+            size = body.u64()
+            body.u32()
+            comp = body.string()
+            rec_len = body.u64()
+        except (ValueError, struct.error):
+            rd.warn(f"{path}: damaged chunk header at byte {int(offs[i])}; chunk skipped")
+            continue
+        rec_off = int(offs[i]) + body.p
+        if rec_off + rec_len > int(offs[i]) + int(lens[i]):
+            rd.warn(f"{path}: damaged chunk at byte {int(offs[i])}; chunk skipped")
+            continue
+        rd.chunks.append((rec_off, rec_len, comp, size))
+        seg = len(rd.chunks) - 1
+        try:
+            cdata = rd.decompress(seg)
+        except Exception as e:  # zstd/lz4 raise their own error types
+            rd.warn(f"{path}: chunk at byte {int(offs[i])} cannot be decompressed ({e}); chunk skipped")
+            continue
+        cb = np.frombuffer(cdata, np.uint8)
+        c_ops, c_offs, c_lens, c_ch, c_lt, c_stop = scan_records(cb, 0, len(cb))
+        handle_meta_records(cdata, c_ops, c_offs, c_lens, f"chunk at byte {int(offs[i])}")
+        handle_messages(seg, cb, c_ops, c_offs, c_lens, c_ch, c_lt)
+        if c_stop != len(cb):
+            rd.warn(f"{path}: chunk at byte {int(offs[i])} is damaged after {len(c_ops)} records; "
+                    f"the rest of the chunk is skipped")
+    if not end_ok:
+        lg = "no message" if last_good[0] is None else f"last good message at {format_time(last_good[0])}"
+        rd.warn(f"{path}: truncated or damaged at byte {int(stop)} of {len(data)}; "
+                f"kept every complete message before it ({lg})")
+
+    # ---------------- decode per channel ----------------
+    log = FlightLog(path=path, metadata=metadata, topics={}, issues=rd.issues)
+    for cid, parts in sorted(raw.items()):
+        if cid not in channels:
+            rd.warn(f"{path}: messages of unknown channel id {cid}; skipped")
+            continue
+        topic, sid, msg_enc = channels[cid]
+        sname, senc, stext = schemas.get(sid, ("", "", b""))
+        n_msgs = sum(len(p[2]) for p in parts)
+        log.topics[topic] = TopicInfo(topic, sname, msg_enc, n_msgs)
+        if want is not None and topic not in want:
+            continue
+        _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_images)
+    return log
+
+
+def _layout_for(sname: str, senc: str, stext: bytes, msg_enc: str) -> lf.Layout | None:
+    """Vectorised codec for a channel, None when it has no fast path."""
+    if senc != "ros2msg" or msg_enc != "cdr":
+        return None
+    short = lf.short_name(sname)
+    try:
+        defs = lf.parse_schema(sname, stext.decode("utf-8"))
+        return lf.Layout(short, defs)
+    except (lf.NotVectorisable, ValueError, UnicodeDecodeError):
+        return None
+
+
+def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_images):
+    path = rd.path
+    t = np.concatenate([p[4] for p in parts])
+    if len(t) == 0:
+        return
+    short = lf.short_name(sname)
+    layout = _layout_for(sname, senc, stext, msg_enc)
+    if short == "tf2_msgs/TFMessage" or (senc == "ros2msg" and layout is None):
+        _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts)
+        return
+    if layout is None:
+        rd.warn(f"{path}: topic {topic}: unknown schema {sname!r} (encoding {senc!r}/{msg_enc!r}); skipped")
+        return
+    if short not in lf.MSG_TEXTS:
+        rd.warn(f"{path}: topic {topic}: unknown schema {sname!r}; decoded generically "
+                "(fields named as in its definition)")
+    elif layout.signature != lf.known_layout(short).signature:
+        rd.warn(f"{path}: topic {topic}: schema {sname!r} differs from horizon-nav's definition; "
+                "decoded as the file's schema says")
+    if short == IMAGE_TYPE:
+        loc = np.concatenate([np.stack([np.full(len(p[2]), p[0]), p[2], p[3]], axis=1) for p in parts])
+        order = _validate_times(rd, topic, t)
+        if include_images:
+            cam = lf.parse_camera_topic(topic)
+            stream = ImageStream(topic, rd, t[order], loc[order])
+            if cam:
+                log.images[cam[0]] = stream
+            else:
+                log.other[topic] = (stream.t_ns, stream)
+        return
+    width = max(int(p[3].max()) for p in parts)
+    mats = []
+    for seg, b, o, ln, _ in parts:
+        mats.append(gather_rows(b, o, ln, width))
+    rows = mats[0] if len(mats) == 1 else np.concatenate(mats)
+    lengths = np.concatenate([p[3] for p in parts])
+    vals, ok = layout.decode(rows, lengths)
+    del rows, mats
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        rd.warn(f"{path}: topic {topic}: {len(bad)} message(s) too short for schema {sname} "
+                f"(first at {format_time(t[bad[0]])}); dropped")
+        vals = _select(vals, ok)
+        t = t[ok]
+    if "header.stamp.sec" in vals:
+        stamp = vals["header.stamp.sec"].astype(np.int64) * 1_000_000_000 + vals["header.stamp.nanosec"]
+        diff = np.flatnonzero(stamp != t)
+        if len(diff):
+            rd.warn(f"{path}: topic {topic}: header.stamp differs from log_time in {len(diff)} message(s) "
+                    f"(first at log_time {format_time(t[diff[0]])}); log_time used")
+    order = _validate_times(rd, topic, t)
+    if order is not None and not (len(order) == len(t) and np.all(order[1:] > order[:-1])):
+        vals = _select(vals, order)
+        t = t[order]
+    fields = _shape_fields(short, vals)
+    _check_nan(rd, topic, t, fields)
+    log.series[topic] = Series(topic, sname, t, fields)
+
+
+def _select(vals: dict, idx) -> dict:
+    out = {}
+    for k, v in vals.items():
+        if isinstance(v, list):
+            ii = np.flatnonzero(idx) if np.asarray(idx).dtype == bool else idx
+            out[k] = [v[i] for i in ii]
+        else:
+            out[k] = v[idx]
+    return out
+
+
+def _validate_times(rd, topic, t) -> np.ndarray:
+    """Indices that sort ``t`` and drop duplicates (warning about either)."""
+    path = rd.path
+    d = np.diff(t)
+    order = np.arange(len(t))
+    if np.any(d < 0):
+        first = int(np.flatnonzero(d < 0)[0]) + 1
+        rd.warn(f"{path}: topic {topic}: time stamps out of order ({int(np.sum(d < 0))} step(s) back, first at "
+                f"{format_time(t[first])}); sorted by time")
+        order = np.argsort(t, kind="stable")
+    ts = t[order]
+    dup = np.flatnonzero(np.diff(ts) == 0) + 1
+    if len(dup):
+        rd.warn(f"{path}: topic {topic}: {len(dup)} duplicate time stamp(s) (first at {format_time(ts[dup[0]])}); "
+                "kept the first message of each stamp")
+        keep = np.ones(len(ts), bool)
+        keep[dup] = False
+        order = order[keep]
+    return order
+
+
+def _check_nan(rd, topic, t, fields):
+    bad = np.zeros(len(t), bool)
+    for v in fields.values():
+        if isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.shape[:1] == (len(t),):
+            bad |= np.isnan(v.reshape(len(t), -1)).any(axis=1)
+        elif isinstance(v, np.ndarray) and v.dtype == object and v.shape == (len(t),):
+            bad |= np.array([np.isnan(x).any() for x in v], bool)
+    if bad.any():
+        i = np.flatnonzero(bad)
+        rd.warn(f"{rd.path}: topic {topic}: NaN in {len(i)} message(s) (first at {format_time(t[i[0]])}); kept")
+
+
+_VEC_NAMES = (("x", "y", "z", "w"), ("x", "y", "z"))
+
+
+def _shape_fields(short: str, vals: dict) -> dict:
+    """Generic leaf dict -> user fields: header dropped (frame_id kept), x/y/z(/w) groups stacked,
+    3x3 covariances and CameraInfo matrices reshaped, Imu aliases gyro/accel."""
+    out: dict = {}
+    groups: dict[str, dict[str, np.ndarray]] = {}
+    for k, v in vals.items():
+        if k.startswith("header."):
+            if k == "header.frame_id":
+                out["frame_id"] = v
+            continue
+        if "." in k:
+            pre, last = k.rsplit(".", 1)
+            groups.setdefault(pre, {})[last] = v
+            continue
+        out[k] = v
+    for pre, g in groups.items():
+        stacked = False
+        for names in _VEC_NAMES:
+            if set(g) == set(names) and all(isinstance(g[n], np.ndarray) and g[n].dtype == np.float64 for n in names):
+                out[pre] = np.stack([g[n] for n in names], axis=1)
+                stacked = True
+                break
+        if not stacked:
+            for last, v in g.items():
+                out[f"{pre}.{last}"] = v
+    for k, v in list(out.items()):
+        if isinstance(v, np.ndarray) and v.ndim == 2 and v.dtype == np.float64:
+            if v.shape[1] == 9 and (k.endswith("covariance") or k.endswith("overbound") or
+                                    (short == "sensor_msgs/CameraInfo" and k in ("k", "r"))):
+                out[k] = v.reshape(-1, 3, 3)
+            elif short == "sensor_msgs/CameraInfo" and k == "p" and v.shape[1] == 12:
+                out[k] = v.reshape(-1, 3, 4)
+    if short == "sensor_msgs/Imu":
+        out["gyro"] = out.get("angular_velocity")
+        out["accel"] = out.get("linear_acceleration")
+    if short == f"{lf.PKG}/NavSolution":
+        names = out.get("state_names", [])
+        out["state_names"] = next((list(x) for x in names if len(x)), [])
+        cov = out.get("covariance")
+        if isinstance(cov, np.ndarray) and cov.dtype == np.float64:
+            n = int(round(np.sqrt(cov.shape[1])))
+            if n * n == cov.shape[1]:
+                out["covariance"] = cov.reshape(-1, n, n)
+    if short == f"{lf.PKG}/MeasurementRecord":
+        ic = out.get("innovation_covariance")
+        if isinstance(ic, np.ndarray) and ic.dtype == np.float64:
+            m = int(round(np.sqrt(ic.shape[1])))
+            if m * m == ic.shape[1]:
+                out["innovation_covariance"] = ic.reshape(-1, m, m)
+        elif isinstance(ic, np.ndarray):
+            out["innovation_covariance"] = np.array(
+                [x.reshape(int(round(np.sqrt(len(x)))), -1) if len(x) else x.reshape(0, 0) for x in ic] + [None],
+                dtype=object)[:-1]
+    return out
+
+
+def _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts):
+    """Decode a channel message by message with mcap_ros2's decoder (tf_static and exotic schemas)."""
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+    path = rd.path
+    why = ""
+    try:
+        dec = DecoderFactory().decoder_for(msg_enc, Schema(id=0, name=sname, encoding=senc, data=stext))
+    except Exception as e:  # the reference decoder raises assorted errors on bad schemas
+        dec, why = None, f": {e}"
+    if dec is None:
+        rd.warn(f"{path}: topic {topic}: unknown schema {sname!r} (encoding {senc!r}/{msg_enc!r}){why}; skipped")
+        return
+    t_all, msgs = [], []
+    for seg, b, o, ln, lt in parts:
+        for oi, li, ti in zip(o.tolist(), ln.tolist(), lt.tolist()):
+            try:
+                msgs.append(dec(bytes(b[oi:oi + li])))
+                t_all.append(ti)
+            except Exception:
+                rd.warn(f"{path}: topic {topic}: message at {format_time(ti)} cannot be decoded; dropped")
+    t = np.array(t_all, dtype=np.int64)
+    order = _validate_times(rd, topic, t)
+    t = t[order]
+    msgs = [msgs[i] for i in order]
+    if lf.short_name(sname) == "tf2_msgs/TFMessage":
+        for ti, m in zip(t.tolist(), msgs):
+            for tr in m.transforms:
+                tt, q = tr.transform.translation, tr.transform.rotation
+                log.tf_static[tr.child_frame_id] = Transform(
+                    tr.header.frame_id, tr.child_frame_id, np.array([tt.x, tt.y, tt.z]),
+                    np.array([q.x, q.y, q.z, q.w]), ti)
+    else:
+        if lf.short_name(sname) not in lf.MSG_TEXTS:
+            rd.warn(f"{path}: topic {topic}: schema {sname!r} is not a horizon-nav type; "
+                    "decoded message by message into log.other")
+        log.other[topic] = (t, msgs)
