@@ -12,7 +12,7 @@ def test_help_lists_subcommands(capsys):
         cli.main(["--help"])
     assert e.value.code == 0
     out = capsys.readouterr().out
-    for cmd in ("demo", "ephem"):
+    for cmd in ("analyze", "demo", "ephem"):
         assert cmd in out
 
 
