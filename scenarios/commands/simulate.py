@@ -1,0 +1,115 @@
+"""``horizon-nav simulate SCENARIO -o logs/NAME.mcap``: simulate a flight and write its MCAP log.
+
+Writes (docs/log-format.md): IMU (``/imu`` rates or ``/imu_increment``), GPS fixes (``/gps``), the
+truth (``/truth/state`` at the IMU rate), per camera ``camera_info``, the ``/tf_static`` mounts
+(the *nominal* mounts: the true misalignment is in ``/camera_<k>/truth``) and the per-frame camera
+truth, with the scenario TOML, seed and software version as MCAP metadata. The file is written to a
+temporary file and renamed when complete (``scenarios.log_writer.LogWriter``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from nav.rotation import matrix_to_quat
+from scenarios import simulate as sim
+from scenarios.errors import UserError
+from scenarios.scenario import load_scenario
+from vision.camera import to_opencv
+
+NAME = "simulate"
+HELP = "simulate a flight of a scenario (library name or .toml) and write an MCAP log"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("scenario", help="library scenario name (see `horizon-nav scenarios`) or a .toml file")
+    p.add_argument("-o", "--output", required=True, help="output log, e.g. logs/atek.mcap")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the scenario's)")
+    p.add_argument("--no-images", dest="images", action="store_false", default=False,
+                   help="do not render camera images (default: truth only until a renderer is installed)")
+    p.add_argument("--images", dest="images", action="store_true", help="render camera images")
+    p.add_argument("--truth-rate", type=float, default=None,
+                   help="rate of /truth/state [Hz] (default: the IMU rate); must divide the truth rate")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = None, progress=None) -> Path:
+    """Write a simulated flight as a horizon-nav MCAP log (atomic: temp file, then rename)."""
+    from scenarios.log_writer import LogWriter
+
+    sc = flight.scenario
+    tr = flight.truth
+    meta = {"scenario": sc.toml_text, "scenario_name": sc.name, "seed": flight.seed,
+            "liftoff_utc_ns": tr.liftoff_ns, "kind": "simulated", "duration_s": flight.duration,
+            "imu_output": flight.imu.output, "imu_sample": sc.imu.sample}
+    rate = truth_rate_hz or sc.imu.rate_hz
+    m = int(round(1.0 / (tr.dt * rate)))
+    if m < 1 or abs(m * tr.dt * rate - 1.0) > 1e-9:
+        raise UserError(f"--truth-rate {rate}: must divide the truth rate {1.0 / tr.dt:g} Hz")
+    with LogWriter(path, meta) as w:
+        t0 = int(tr.liftoff_ns)
+        mounts = {c.k: (np.zeros(3), matrix_to_quat(c.R_bc_nominal)) for c in flight.cameras}
+        if mounts:
+            w.write_tf_static(np.array([t0], np.int64), mounts)
+        for c in flight.cameras:
+            K, D = to_opencv(c.camera)
+            w.write_camera_info(c.k, np.array([t0], np.int64), c.camera.width, c.camera.height, K, D,
+                                distortion_model="equidistant")
+            ct = c.truth
+            n = len(ct.t)
+            w.write_camera_truth(c.k, c.t_ns, ct.nadir_c, ct.sun_c, ct.moon_c, ct.horizon_visible,
+                                 list(ct.conic_type), ct.sun_in_view, ct.moon_in_view, ct.earth_fraction,
+                                 np.broadcast_to(c.psi_c, (n, 3)))
+            for t_ns, jpeg in flight.images.get(c.k, []):
+                w.write_image(c.k, t_ns, jpeg)
+        if progress:
+            progress(0.9, "write imu")
+        imu = flight.imu
+        t_imu = flight.to_ns(imu.t)
+        if imu.output == "increment":
+            w.write_imu_increment(t_imu, imu.gyro, imu.accel, imu.dt)
+        else:
+            w.write_imu(t_imu, imu.gyro, imu.accel)
+        g = flight.gps
+        if len(g.t):
+            w.write_gps(flight.to_ns(g.t), g.position, g.velocity, g.position_cov, g.velocity_cov,
+                        num_satellites=g.num_satellites, status=0)
+        sel = slice(0, None, m)
+        w.write_truth(tr.t_ns[sel], tr.x_e[sel], tr.v_e[sel], tr.q_eb[sel], tr.omega_ib_b[sel], tr.f_b[sel])
+    return Path(path)
+
+
+def run(args) -> int:
+    sc = load_scenario(args.scenario)
+    out = Path(args.output)
+    if out.suffix != ".mcap":
+        raise UserError(f"-o {out}: expected a .mcap file name")
+    if args.duration is not None and not args.duration > 0:
+        raise UserError(f"--duration {args.duration}: expected a positive number of seconds")
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+        bar = tqdm(total=100, desc=f"simulate {sc.name}", unit="%", bar_format="{l_bar}{bar}| {elapsed}")
+
+    def progress(frac, label):
+        if bar is not None:
+            bar.set_postfix_str(label)
+            bar.update(int(round(frac * 100)) - bar.n)
+
+    try:
+        flight = sim.simulate_flight(sc, args.seed, args.duration, render_images=args.images,
+                                     progress=lambda f, label: progress(0.85 * f, label))
+        write_log(flight, out, args.truth_rate, progress)
+        progress(1.0, "done")
+    finally:
+        if bar is not None:
+            bar.close()
+    from scenarios.truth import summary
+    s = summary(flight.truth)
+    print(f"{out}: {sc.name}, seed {args.seed}, {flight.duration:.0f} s; apogee {s['apogee_m'] / 1e3:.1f} km at "
+          f"T+{s['apogee_t_s']:.0f} s; {len(flight.imu.t)} IMU samples, {len(flight.gps.t)} GPS fixes, "
+          f"{sum(len(c.t_ns) for c in flight.cameras)} camera frames (truth only"
+          f"{'' if not flight.images else ', with images'})")
+    return 0
