@@ -207,6 +207,10 @@ class LogWriter:
         self._file.flush()
         os.fsync(self._file.fileno())
         self._file.close()
+        # mkstemp makes the file private (0600); a finished log gets the usual umask permissions.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(self._tmp, 0o666 & ~umask)
         os.replace(self._tmp, self.path)
         self._closed = True
         return self.path
