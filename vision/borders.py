@@ -1,0 +1,434 @@
+"""Edge search: topological border following restricted to the image border, the payload-mask
+boundary and a raster of horizontal search lines (003 §3.1, §5; 004 §2.2.3).
+
+What is found
+-------------
+The *outer borders of the external white components* (the border of a white 8-connected region
+against the black 4-connected region around it, for regions that are not inside a hole of another
+region: 004 §2.2.3, "if a border is enclosed by another border, this border is not detected") that
+touch the image border or the payload mask (003 §3.1: the Earth is never fully inside the image)
+or cross one of the search lines (003 §5: ellipses fully inside the image). Small enclosed blobs
+(clouds) that neither touch the border nor cross a line are never examined (003 fig. 10). With a
+search line on every row the result is exactly OpenCV's ``findContours(RETR_EXTERNAL,
+CHAIN_APPROX_NONE)`` (`find_borders_reference`), which is Suzuki & Abe (1985) (003 ref. [33]).
+
+Search lines (003 §5): rows spaced ``2 l = 2 b^2 / a = 2 f tan(alpha)`` (`search_line_spacing`),
+l the semi-latus rectum of the smallest ellipse to be found, so that every ellipse of at least that
+size crosses a line. The integer spacing used is ``floor(2 f tan(alpha))`` (never sparser).
+
+Algorithm
+---------
+Only the pixels on the seed paths are examined (thresholded on the fly from the colour frame with
+`vision.binarize.sum_threshold`; the frame is never binarised as a whole), plus the 8-neighbours
+of the pixels of the borders that are followed:
+
+1. Image-border ring, then the mask seeds (`vision.mask`): each white pixel not yet on a followed
+   border starts a border; its outward neighbour (virtual frame or mask) is the black start pixel.
+2. Each search line, left to right, keeping track of whether the black run the scan is in belongs
+   to the background around the external regions (``bg``): it starts true at the frame, is true in
+   masked pixels, and at each 1->0 step is set from the mark that border following leaves on a
+   border pixel whose right neighbour was examined as black (Suzuki-Abe's ``-NBD`` mark, 003 ref.
+   [33] step 3.4(a)): the examined black pixels of a border are 4-connected to its start pixel, so
+   the mark is set iff the right neighbour belongs to the background. A 0->1 step with ``bg`` true
+   starts an outer border unless the pixel is already on one. Holes and the regions inside holes
+   are therefore never followed.
+3. Border following is Suzuki & Abe's Algorithm 1, step 3 (the Moore-neighbour following used by
+   OpenCV): from the start pixel and its black neighbour, search clockwise for the first white
+   neighbour (i1), then repeatedly search counter-clockwise around the current pixel starting next
+   to the previous one, until the current pixel is i1 and the next is the start pixel.
+
+Chains run like OpenCV's (counter-clockwise on screen around a white region: white on the left
+when walking with v down); with the same start pixel the sequence is identical to OpenCV's.
+Pixel coordinates are (u, v), u the column and v the row (OpenCV). Direction codes: 0 = +u (E),
+1 = +u+v, 2 = +v (S), 3 = -u+v, 4 = -u (W), 5 = -u-v, 6 = -v (N), 7 = +u-v (clockwise on screen).
+"""
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numba
+import numpy as np
+
+from vision.binarize import as_frame, sum_threshold
+from vision.mask import PayloadMask
+
+__all__ = [
+    "SearchConfig",
+    "Borders",
+    "SEED_RING",
+    "SEED_MASK",
+    "SEED_LINE",
+    "search_line_spacing",
+    "search_rows",
+    "find_borders",
+    "find_borders_reference",
+]
+
+SEED_RING, SEED_MASK, SEED_LINE = 0, 1, 2
+
+_VISITED = np.uint8(1)   # pixel lies on a followed border
+_EAST0 = np.uint8(2)     # ... and its +u neighbour was examined black while following (S-A -NBD)
+
+_DV = np.array([0, 1, 1, 1, 0, -1, -1, -1], np.int64)
+_DU = np.array([1, 1, 0, -1, -1, -1, 0, 1], np.int64)
+# direction code of the step (dv, du): _DIR[(dv + 1) * 3 + du + 1]
+_DIR = np.array([5, 6, 7, 4, -1, 0, 3, 2, 1], np.int64)
+
+# kernel status
+_OK, _OVERFLOW = 0, 1
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Edge-search options.
+
+    Attributes
+    ----------
+    line_spacing_px : distance of the horizontal search lines [px] (`search_line_spacing`); None
+        searches the image border (and mask boundary) only (003 §3.1).
+    line_offset_px : row of the first line; None centres the raster (first row = spacing / 2).
+    max_points : limit on the number of followed border pixels (all borders); beyond it the search
+        stops and reports an overflow (a frame of noise, not a horizon).
+    """
+
+    line_spacing_px: float | None = None
+    line_offset_px: float | None = None
+    max_points: int = 2_000_000
+
+    def __post_init__(self):
+        if self.line_spacing_px is not None and not (self.line_spacing_px >= 1.0):
+            raise ValueError(f"SearchConfig.line_spacing_px: {self.line_spacing_px}, expected >= 1 px or None")
+        if self.max_points < 1:
+            raise ValueError(f"SearchConfig.max_points: {self.max_points}, expected >= 1")
+
+
+def search_line_spacing(focal_px: float, alpha: float, scale: float = 1.0) -> float:
+    """Search-line distance ``2 l = 2 f tan(alpha)`` [px] (003 §5), times ``scale`` (< 1 for margin,
+    e.g. where the lens distortion shrinks the image of the body).
+
+    ``focal_px`` is the focal length in pixels, ``alpha`` the smallest expected apparent half-angle
+    [rad] of the body (Sun/Moon with glare, or the Earth cone at the highest altitude).
+    """
+    if not (focal_px > 0 and 0 < alpha < math.pi / 2 and scale > 0):
+        raise ValueError(f"search_line_spacing: focal_px={focal_px}, alpha={alpha}, scale={scale}; "
+                         "expected focal_px > 0, 0 < alpha < pi/2, scale > 0")
+    return 2.0 * focal_px * math.tan(alpha) * scale
+
+
+def search_rows(height: int, spacing: float | None, offset: float | None = None) -> np.ndarray:
+    """Rows of the search lines: ``offset + k * floor(spacing)`` inside (0, height - 1) (the first
+    and last rows belong to the image border). Empty if ``spacing`` is None."""
+    if spacing is None:
+        return np.zeros(0, np.int64)
+    s = max(1, int(math.floor(spacing)))
+    o = s // 2 if offset is None else int(round(offset))
+    rows = np.arange(o, height, s, dtype=np.int64)
+    return rows[(rows > 0) & (rows < height - 1)]
+
+
+@dataclass(frozen=True, eq=False)
+class Borders:
+    """Followed outer borders, concatenated.
+
+    Attributes
+    ----------
+    points : (N, 2) int32 (u, v) of all borders, each border an ordered closed chain (the last
+        pixel is 8-adjacent to the first; pixels of one-pixel-wide parts appear twice, as in 003 /
+        OpenCV).
+    offsets : (n + 1,) int64; border i is ``points[offsets[i]:offsets[i + 1]]``.
+    seed : (n,) int8, how the border was found: SEED_RING, SEED_MASK or SEED_LINE.
+    rows : search-line rows used.
+    shape : (H, W) of the image.
+    visited : (H, W) uint8 or None, nonzero on followed border pixels (for annotation).
+    n_scanned : pixels examined on the seed paths (ring, mask boundary, lines).
+    n_followed : neighbour examinations made while following.
+    overflow : the search stopped at ``max_points``.
+    """
+
+    points: np.ndarray
+    offsets: np.ndarray
+    seed: np.ndarray
+    rows: np.ndarray
+    shape: tuple[int, int]
+    visited: np.ndarray | None = field(default=None, repr=False)
+    n_scanned: int = 0
+    n_followed: int = 0
+    overflow: bool = False
+
+    def __len__(self) -> int:
+        return self.offsets.size - 1
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"border {i} of {n}")
+        i %= n
+        return self.points[self.offsets[i]:self.offsets[i + 1]]
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+
+@numba.njit(cache=True, nogil=True)
+def _value(img, pen, v, u):  # pragma: no cover - numba
+    """Channel sum of (v, u) minus 1024 on masked pixels (so < 0: outside); -1 outside the image.
+
+    The mask enters as arithmetic on ``pen`` (uint8 0/1, zeros without a mask): a
+    data-dependent branch on the mask here makes numba/LLVM keep the call out of line (10x
+    slower scans)."""
+    h, w, nc = img.shape
+    if v < 0 or u < 0 or v >= h or u >= w:
+        return np.int64(-1)
+    s = np.int64(0)
+    for c in range(nc):
+        s += np.int64(img[v, u, c])
+    return s - np.int64(1024) * np.int64(pen[v, u])
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow(buf, n):  # pragma: no cover - numba
+    new = np.empty((2 * buf.shape[0], 2), buf.dtype)
+    new[:n] = buf[:n]
+    return new
+
+
+@numba.njit(cache=True, nogil=True)
+def _follow(img, tsum, pen, state, v0, u0, d0, buf, n, max_points, counts):  # pragma: no cover
+    """Suzuki-Abe border following (003 ref. [33], Algorithm 1 step 3) from white (v0, u0) whose
+    neighbour in direction d0 is black. Appends (u, v) to buf from n; returns (buf, n, status)."""
+    # (3.1) clockwise from d0: the first white neighbour i1
+    d1 = -1
+    for k in range(8):
+        d = (d0 + k) & 7
+        counts[1] += 1
+        if _value(img, pen, v0 + _DV[d], u0 + _DU[d]) >= tsum:
+            d1 = d
+            break
+    if d1 < 0:  # isolated pixel
+        if n >= max_points:
+            return buf, n, _OVERFLOW
+        if n >= buf.shape[0]:
+            buf = _grow(buf, n)
+        buf[n, 0] = u0
+        buf[n, 1] = v0
+        state[v0, u0] |= _VISITED | _EAST0
+        return buf, n + 1, _OK
+    v1 = v0 + _DV[d1]
+    u1 = u0 + _DU[d1]
+    pv, pu = v1, u1        # (i2, j2)
+    cv, cu = v0, u0        # (i3, j3)
+    while True:
+        # (3.3) counter-clockwise around (cv, cu) from the element after (pv, pu)
+        dp = _DIR[(pv - cv + 1) * 3 + (pu - cu + 1)]
+        east0 = False
+        nv, nu = pv, pu
+        for k in range(1, 9):
+            d = (dp - k) & 7
+            counts[1] += 1
+            tv = cv + _DV[d]
+            tu = cu + _DU[d]
+            if _value(img, pen, tv, tu) >= tsum:
+                nv, nu = tv, tu
+                break
+            if d == 0:
+                east0 = True
+        # (3.4) record and mark
+        if n >= max_points:
+            return buf, n, _OVERFLOW
+        if n >= buf.shape[0]:
+            buf = _grow(buf, n)
+        buf[n, 0] = cu
+        buf[n, 1] = cv
+        n += 1
+        st = state[cv, cu] | _VISITED
+        if east0:
+            st |= _EAST0
+        state[cv, cu] = st
+        # (3.5) closed?
+        if nv == v0 and nu == u0 and cv == v1 and cu == u1:
+            return buf, n, _OK
+        pv, pu = cv, cu
+        cv, cu = nv, nu
+
+
+@numba.njit(cache=True, nogil=True)
+def _search(img, tsum, pen, seed_v, seed_u, seed_d, rows, max_points, follow):  # pragma: no cover
+    h, w, nc = img.shape
+    state = np.zeros((h, w), np.uint8)
+    buf = np.empty((4096, 2), np.int32)
+    offsets = np.zeros(64, np.int64)
+    kinds = np.zeros(64, np.int8)
+    nb = 0
+    n = 0
+    counts = np.zeros(2, np.int64)   # [scanned, followed]
+    status = _OK
+    # seed paths: ring (clockwise from the top-left corner), mask boundary
+    nring = 2 * (w + h) - 4
+    for k in range(nring + seed_v.shape[0]):
+        if k < w:
+            v, u, d = 0, k, 6
+        elif k < w + h - 1:
+            v, u, d = k - w + 1, w - 1, 0
+        elif k < 2 * w + h - 2:
+            v, u, d = h - 1, w - 1 - (k - (w + h - 1)) - 1, 2
+        elif k < nring:
+            v, u, d = h - 2 - (k - (2 * w + h - 2)), 0, 4
+        else:
+            v, u, d = seed_v[k - nring], seed_u[k - nring], seed_d[k - nring]
+        counts[0] += 1
+        if state[v, u] & _VISITED:
+            continue
+        if _value(img, pen, v, u) < tsum:
+            continue
+        if not follow:
+            continue
+        start = n
+        buf, n, status = _follow(img, tsum, pen, state, v, u, d, buf, n, max_points, counts)
+        if nb + 1 >= offsets.shape[0]:
+            offsets = np.concatenate((offsets, np.zeros(offsets.shape[0], np.int64)))
+            kinds = np.concatenate((kinds, np.zeros(kinds.shape[0], np.int8)))
+        offsets[nb] = start
+        kinds[nb] = 0 if k < nring else 1
+        nb += 1
+        offsets[nb] = n
+        if status != _OK:
+            return buf[:n], offsets[:nb + 1], kinds[:nb], state, counts, status
+    # search lines, left to right, tracking whether the black run is the background (bg)
+    for r in range(rows.shape[0]):
+        v = rows[r]
+        counts[0] += w
+        u, bg, prev = 0, True, False
+        while True:
+            u, bg = _scan_row(img, tsum, pen, state, v, u, bg, prev)
+            if u >= w:
+                break
+            if follow:
+                start = n
+                buf, n, status = _follow(img, tsum, pen, state, v, u, 4, buf, n, max_points, counts)
+                if nb + 1 >= offsets.shape[0]:
+                    offsets = np.concatenate((offsets, np.zeros(offsets.shape[0], np.int64)))
+                    kinds = np.concatenate((kinds, np.zeros(kinds.shape[0], np.int8)))
+                offsets[nb] = start
+                kinds[nb] = 2
+                nb += 1
+                offsets[nb] = n
+                if status != _OK:
+                    return buf[:n], offsets[:nb + 1], kinds[:nb], state, counts, status
+            u += 1
+            prev = True
+    return buf[:n], offsets[:nb + 1], kinds[:nb], state, counts, status
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_row(img, tsum, pen, state, v, u, bg, prev):  # pragma: no cover - numba
+    """Scan row v from column u (``bg``, ``prev`` = state left of u) to the next pixel that starts
+    an external outer border not yet followed; returns (its column or W, bg there). Kept apart
+    from `_search` so that this hot loop carries no array references (numba refcounting)."""
+    w = img.shape[1]
+    while u < w:
+        val = _value(img, pen, v, u)
+        if val < 0:              # masked: outside, like the frame
+            bg = True
+            prev = False
+        else:
+            cur = val >= tsum
+            if cur and not prev:
+                if bg and (state[v, u] & _VISITED) == 0:
+                    return u, bg
+            elif prev and not cur:
+                bg = (state[v, u - 1] & _EAST0) != 0
+            prev = cur
+        u += 1
+    return w, bg
+
+
+@functools.lru_cache(maxsize=4)
+def _zero_penalty(shape: tuple[int, int]) -> np.ndarray:
+    # a real C-contiguous array (not a stride-0 view) so that the kernel compiles once
+    return np.zeros(shape, np.uint8)
+
+
+def _mask_arrays(mask: PayloadMask | None, shape):
+    z = np.zeros(0, np.int64)
+    if mask is not None:
+        mask.check(shape)
+    if mask is None or not mask.has_mask:
+        return _zero_penalty(tuple(shape)), z, z, z
+    return np.ascontiguousarray(mask.penalty), mask.seed_v, mask.seed_u, mask.seed_d
+
+
+def find_borders(image, threshold: float, mask: PayloadMask | None = None,
+                 config: SearchConfig = SearchConfig(), rows: np.ndarray | None = None,
+                 _follow_borders: bool = True) -> Borders:
+    """Outer borders of the white regions touching the image border / mask or crossing a search line.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) uint8 frame (BGR or RGB: the mean does not depend on the order).
+    threshold : mean-brightness threshold t [0, 255]; white iff mean of channels >= t
+        (`vision.binarize`). For a binary 0/1 or 0/255 image use 1.
+    mask : payload mask (`vision.mask.PayloadMask`) of the same size, or None.
+    config : search options; ``rows`` (explicit search rows) overrides ``config.line_spacing_px``.
+
+    Returns
+    -------
+    Borders ; ``overflow`` is set if more than ``config.max_points`` border pixels were followed.
+    """
+    a = np.ascontiguousarray(as_frame(image))   # views (crops, flips) are copied: one kernel
+    h, w = a.shape[:2]
+    pen, sv, su, sd = _mask_arrays(mask, (h, w))
+    if rows is None:
+        rows = search_rows(h, config.line_spacing_px, config.line_offset_px)
+    else:
+        rows = np.asarray(rows, dtype=np.int64).ravel()
+        if rows.size and (rows.min() < 0 or rows.max() >= h):
+            raise ValueError(f"rows: values {rows.min()}..{rows.max()}, expected 0..{h - 1}")
+    if not (0.0 <= threshold <= 255.0):
+        raise ValueError(f"threshold: {threshold}, expected 0..255 (mean of the channels)")
+    tsum = sum_threshold(threshold, a.shape[2])
+    pts, offs, kinds, state, counts, status = _search(
+        a, tsum, pen, sv, su, sd, rows, int(config.max_points), bool(_follow_borders))
+    return Borders(pts, offs.copy(), kinds.copy(), rows, (h, w), state,
+                   int(counts[0]), int(counts[1]), status == _OVERFLOW)
+
+
+def find_borders_reference(binary, mask: PayloadMask | None = None, rows=None) -> Borders:
+    """The same borders from OpenCV's ``findContours(RETR_EXTERNAL, CHAIN_APPROX_NONE)`` on the
+    whole binary image (Suzuki & Abe, every pixel examined), kept if they touch the image border,
+    lie next to the mask or have a pixel on a search row. Reference and benchmark baseline.
+
+    ``binary``: (H, W) uint8, nonzero = white; masked pixels are set to black first.
+    """
+    b = np.asarray(binary)
+    if b.ndim != 2 or b.dtype != np.uint8:
+        raise ValueError(f"binary: shape {b.shape} dtype {b.dtype}, expected (H, W) uint8")
+    h, w = b.shape
+    rows = np.zeros(0, np.int64) if rows is None else np.asarray(rows, np.int64).ravel()
+    if mask is not None:
+        mask.check(b.shape)
+        b = np.where(mask.mask, 0, b).astype(np.uint8)
+        near_mask = np.zeros((h, w), np.bool_)
+        near_mask[mask.seed_v, mask.seed_u] = True
+    contours, _ = cv2.findContours(b, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    on_row = np.zeros(h, np.bool_)
+    on_row[rows] = True
+    keep = []
+    for c in contours:
+        p = c.reshape(-1, 2)
+        u, v = p[:, 0], p[:, 1]
+        hit = (u.min() == 0 or v.min() == 0 or u.max() == w - 1 or v.max() == h - 1
+               or on_row[v].any() or (mask is not None and near_mask[v, u].any()))
+        if hit:
+            keep.append(p.astype(np.int32))
+    lens = np.array([len(p) for p in keep], np.int64)
+    offs = np.concatenate(([0], np.cumsum(lens))).astype(np.int64)
+    pts = np.concatenate(keep) if keep else np.zeros((0, 2), np.int32)
+    return Borders(pts, offs, np.full(len(keep), -1, np.int8), rows, (h, w))
