@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import tomllib
 from pathlib import Path
 from typing import Any
 
 from scenarios.errors import UserError
+from scenarios.atomic import atomic_write_text
 from vision.camera import FisheyeCamera, camera_from_dict, camera_to_dict
 
 __all__ = ["load_camera", "save_camera", "dumps_camera"]
@@ -76,14 +76,4 @@ def dumps_camera(camera: FisheyeCamera, comment: str = "") -> str:
 
 def save_camera(camera: FisheyeCamera, path: str | os.PathLike, comment: str = "") -> None:
     """Write a camera file atomically (temporary file + rename)."""
-    p = Path(path)
-    text = dumps_camera(camera, comment)
-    fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=p.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, dumps_camera(camera, comment))

@@ -10,7 +10,6 @@ import copy
 import numpy as np
 import pytest
 
-from nav.rotation import quat_to_matrix
 from scenarios import camera_geometry as cg
 from scenarios.gps_model import simulate_gps, truth_at
 from scenarios.imu_model import (DEG_RT_H, MG, ImuSamples, apply_errors, draw_imu_errors, ideal_imu,

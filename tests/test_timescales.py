@@ -1,5 +1,4 @@
 """Time scales against astropy (independent implementation of the same IERS table) and identities."""
-import warnings
 
 import numpy as np
 import pytest

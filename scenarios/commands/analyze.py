@@ -12,12 +12,12 @@ Files are written atomically (temporary file in the output directory, then renam
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from scenarios.atomic import atomic_output
 
 from scenarios.errors import UserError
 
@@ -55,16 +55,7 @@ def add_arguments(p) -> None:
 # atomic output
 
 
-def _atomic(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+_atomic = atomic_output
 
 
 def write_csv(path: Path, header: list[str], rows: np.ndarray, comment: str = "") -> None:

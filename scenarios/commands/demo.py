@@ -1,7 +1,6 @@
 """``horizon-nav demo``: the main job on the built-in default scenario (what ``make demo`` runs)."""
 from __future__ import annotations
 
-import numpy as np
 
 from nav import timescales
 from scenarios.commands import ephem

@@ -13,10 +13,6 @@ from vision.binarize import BinarizeConfig, binarize, brightness_gate, brightnes
 from vision.borders import SearchConfig, find_borders, find_borders_reference, search_line_spacing
 from vision.candidates import DetectionConfig, detect, split_borders
 
-try:  # inside tests/benchmarks the fixtures come from conftest.py
-    from tests.benchmarks.conftest import bench, is_quick  # noqa: F401
-except ImportError:  # pragma: no cover
-    pass
 
 
 def _frame(h=1080, w=1920, seed=0):
