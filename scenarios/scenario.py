@@ -203,6 +203,7 @@ class CameraConfig:
                                        minimum=0)
     rate_hz: float = _f(1.0, "frame rate", minimum=0, exclusive_min=True)
     start_s: float = _f(0.0, "first frame", minimum=0)
+    end_s: float = _f(0.0, "last frame at or before this time (0: to the end of the flight)", minimum=0)
     clock_offset_s: float = _f(0.0, "camera clock minus true time: frames taken at t are stamped t + offset")
     mask_deg: float = _f(0.0, "payload mask: rays less than this above the payload's tangent plane "
                          "at the camera are hidden by the structure", minimum=-90, maximum=90)

@@ -3,13 +3,12 @@
 Random numbers: one :class:`numpy.random.SeedSequence` per run, and one independent stream per
 sensor, keyed by a fixed spawn key (IMU 1, GPS 2, camera k: 100 + k). Changing one sensor's
 configuration (e.g. the GPS rate) therefore leaves every other sensor's draws unchanged.
-Images are not rendered here: ``render_images=True`` calls the hook :data:`IMAGE_RENDERER`
-(set by the renderer module) with the flight data; without a renderer it raises.
+Images are not rendered here: :func:`scenarios.render.render_flight_images` renders them from the
+returned flight as a stream, which ``horizon-nav simulate`` writes straight into the log.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -21,10 +20,6 @@ from scenarios.scenario import Scenario, load_camera_for
 from scenarios.truth import Truth, simulate_truth
 
 STREAM_IMU, STREAM_GPS, STREAM_CAMERA = 1, 2, 100
-
-#: Image renderer hook: ``f(flight: FlightData, progress) -> None`` that fills ``flight.images``.
-IMAGE_RENDERER: Callable | None = None
-
 
 def rng_for(seed: int, stream: int) -> np.random.Generator:
     """Independent generator of one sensor: SeedSequence(seed, spawn_key=(stream,))."""
@@ -56,7 +51,6 @@ class FlightData:
     imu_errors: ImuErrors
     gps: GpsFixes
     cameras: list
-    images: dict = field(default_factory=dict)
 
     @property
     def liftoff_ns(self) -> int:
@@ -76,7 +70,8 @@ def simulate_cameras(sc: Scenario, truth: Truth, seed: int, step_px: float = 20.
         psi = rng.normal(0.0, np.radians(cfg.misalignment_sigma_deg), 3)
         R_nom = cg.mount_rotation(cfg.azimuth_deg, cfg.depression_deg, cfg.roll_deg)
         R_bc = cg.true_mount(cfg.azimuth_deg, cfg.depression_deg, cfg.roll_deg, psi)
-        t = np.arange(cfg.start_s, truth.t[-1] + 1e-9, 1.0 / cfg.rate_hz)
+        end = truth.t[-1] if cfg.end_s <= 0 else min(cfg.end_s, truth.t[-1])
+        t = np.arange(cfg.start_s, end + 1e-9, 1.0 / cfg.rate_hz)
         idx = np.round(t / truth.dt).astype(int)
         if np.any(np.abs(idx * truth.dt - t) > 1e-9):
             raise ValueError(f"cameras[{i}]: frame times must fall on the truth grid "
@@ -95,7 +90,7 @@ def simulate_cameras(sc: Scenario, truth: Truth, seed: int, step_px: float = 20.
 
 
 def simulate_flight(scenario: Scenario, seed: int = 0, duration: float | None = None, *,
-                    imu_errors: bool = True, render_images: bool = False, progress=None) -> FlightData:
+                    imu_errors: bool = True, progress=None) -> FlightData:
     """Simulate ``scenario`` for ``duration`` s (default: the scenario's) with random seed ``seed``.
 
     ``progress``: optional callable ``progress(fraction, label)`` for a progress bar.
@@ -115,10 +110,5 @@ def simulate_flight(scenario: Scenario, seed: int = 0, duration: float | None = 
     step(0.8, "cameras")
     cams = simulate_cameras(scenario, truth, seed)
     flight = FlightData(scenario, int(seed), duration, truth, imu, errs, gps, cams)
-    if render_images:
-        if IMAGE_RENDERER is None:
-            raise ValueError("render_images: no image renderer is installed (scenarios.simulate.IMAGE_RENDERER); "
-                             "use --no-images")
-        IMAGE_RENDERER(flight, progress)
     step(1.0, "done")
     return flight

@@ -217,4 +217,5 @@ def test_flight_camera_truth(short_flight):
         e_b = R_eb.inv().apply(-x / np.linalg.norm(x, axis=1, keepdims=True))
         np.testing.assert_allclose(c.truth.nadir_c, e_b @ c.R_bc, atol=1e-12)
         assert np.allclose(np.linalg.norm(c.truth.sun_c, axis=1), 1.0)
-        assert c.t_ns[0] == tr.liftoff_ns
+        assert c.t_ns[0] == tr.liftoff_ns + 60 * 10**9  # atek cameras: coast from T+60 (start_s)
+        assert np.all(np.diff(c.t_ns) == 10**9)

@@ -13,7 +13,7 @@ from scenarios.simulate import simulate_flight
 @pytest.fixture(scope="module")
 def log_path(tmp_path_factory):
     out = tmp_path_factory.mktemp("logs") / "atek.mcap"
-    assert cli.main(["simulate", "atek", "-o", str(out), "--seed", "5", "--duration", "70", "--quiet"]) == 0
+    assert cli.main(["simulate", "atek", "-o", str(out), "--seed", "5", "--duration", "70", "--no-images", "--quiet"]) == 0
     return out
 
 
@@ -48,13 +48,25 @@ def test_cli_errors_are_one_line(tmp_path):
     assert not (tmp_path / "o.mcap").exists()
 
 
-def test_render_hook_is_explicit():
-    with pytest.raises(ValueError, match="no-images"):
-        simulate_flight(load_scenario("atek"), 0, 1.0, render_images=True)
-
-
 def test_plot_truth_png(tmp_path):
     out = tmp_path / "truth.png"
     assert cli.main(["plot-truth", "atek", "-o", str(out), "--duration", "120"]) == 0
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+
+
+def test_simulate_writes_rendered_images(tmp_path):
+    import cv2
+
+    from scenarios.log_reader import read_log
+    out = tmp_path / "img.mcap"
+    assert cli.main(["simulate", "atek", "-o", str(out), "--duration", "61.5", "--quiet",
+                     "--jpeg-quality", "70"]) == 0
+    log = read_log(out)
+    for k in (1, 2):
+        ims = log.cameras[k].images
+        # cameras run in the coast from T+60 at 1 Hz: T+60 and T+61
+        assert len(ims) == 2
+        np.testing.assert_array_equal(ims.t_ns, log.cameras[k].truth.t_ns)
+        img = cv2.imdecode(np.frombuffer(bytes(ims[0]), np.uint8), cv2.IMREAD_COLOR)
+        assert img.shape == (1080, 1920, 3)

@@ -27,16 +27,21 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, help="output log, e.g. logs/atek.mcap")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the scenario's)")
-    p.add_argument("--no-images", dest="images", action="store_false", default=False,
-                   help="do not render camera images (default: truth only until a renderer is installed)")
-    p.add_argument("--images", dest="images", action="store_true", help="render camera images")
+    p.add_argument("--no-images", dest="images", action="store_false", default=True,
+                   help="write the per-frame camera truth only, no rendered images (fast, for studies)")
+    p.add_argument("--jpeg-quality", type=int, default=None, help="JPEG quality of rendered frames (default: renderer's)")
     p.add_argument("--truth-rate", type=float, default=None,
                    help="rate of /truth/state [Hz] (default: the IMU rate); must divide the truth rate")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = None, progress=None) -> Path:
-    """Write a simulated flight as a horizon-nav MCAP log (atomic: temp file, then rename)."""
+def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = None, progress=None,
+              images=None) -> Path:
+    """Write a simulated flight as a horizon-nav MCAP log (atomic: temp file, then rename).
+
+    ``images``: optional iterable of ``(camera k, t_ns, jpeg bytes)`` (e.g.
+    :func:`scenarios.render.render_flight_images`), consumed as a stream.
+    """
     from scenarios.log_writer import LogWriter
 
     sc = flight.scenario
@@ -62,8 +67,10 @@ def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = 
             w.write_camera_truth(c.k, c.t_ns, ct.nadir_c, ct.sun_c, ct.moon_c, ct.horizon_visible,
                                  list(ct.conic_type), ct.sun_in_view, ct.moon_in_view, ct.earth_fraction,
                                  np.broadcast_to(c.psi_c, (n, 3)))
-            for t_ns, jpeg in flight.images.get(c.k, []):
-                w.write_image(c.k, t_ns, jpeg)
+        n_images = 0
+        for k, t_ns, jpeg in images or ():
+            w.write_image(k, np.array([t_ns], np.int64), [jpeg])
+            n_images += 1
         if progress:
             progress(0.9, "write imu")
         imu = flight.imu
@@ -99,9 +106,14 @@ def run(args) -> int:
             bar.update(int(round(frac * 100)) - bar.n)
 
     try:
-        flight = sim.simulate_flight(sc, args.seed, args.duration, render_images=args.images,
+        flight = sim.simulate_flight(sc, args.seed, args.duration,
                                      progress=lambda f, label: progress(0.85 * f, label))
-        write_log(flight, out, args.truth_rate, progress)
+        images = None
+        if args.images:
+            from scenarios.render import RenderOptions, render_flight_images
+            opts = RenderOptions() if args.jpeg_quality is None else RenderOptions(jpeg_quality=args.jpeg_quality)
+            images = render_flight_images(flight, options=opts, progress=not args.quiet)
+        write_log(flight, out, args.truth_rate, progress, images=images)
         progress(1.0, "done")
     finally:
         if bar is not None:
@@ -110,6 +122,5 @@ def run(args) -> int:
     s = summary(flight.truth)
     print(f"{out}: {sc.name}, seed {args.seed}, {flight.duration:.0f} s; apogee {s['apogee_m'] / 1e3:.1f} km at "
           f"T+{s['apogee_t_s']:.0f} s; {len(flight.imu.t)} IMU samples, {len(flight.gps.t)} GPS fixes, "
-          f"{sum(len(c.t_ns) for c in flight.cameras)} camera frames (truth only"
-          f"{'' if not flight.images else ', with images'})")
+          f"{sum(len(c.t_ns) for c in flight.cameras)} camera frames ({'with images' if args.images else 'truth only'})")
     return 0
