@@ -8,7 +8,7 @@ returned flight as a stream, which ``horizon-nav simulate`` writes straight into
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
