@@ -1,0 +1,312 @@
+"""Error-state layout of the navigation filter, built from the tuning: 003 eq. (46), generalised.
+
+Order (groups switched ``"off"`` in the tuning are left out)::
+
+    dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w | psi_c[k] for each camera k
+                    | zeta[k, target] for each camera k and target in tuning.targets
+
+* ``dx_e, dv_e`` true minus estimated position and velocity in e [m, m/s];
+* ``psi`` attitude error in e, from the estimated to the true attitude (CONVENTIONS "Rotations");
+* ``b_f, b_w`` residual accelerometer / gyro bias (measurement minus truth after calibration);
+* ``s_f, s_w`` residual scale factors, ``m_f, m_w`` residual small-angle misalignments
+  (sensitivities in :mod:`nav.imu_errors`);
+* ``psi_c`` camera misalignment in b, ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50));
+* ``zeta`` Gauss-Markov vector errors of 003 eqs. (41)-(45), in the camera frame.
+
+The navigation block (dx, dv, psi) is always estimated; every other group is estimated or
+considered (Schmidt-Kalman) as the tuning says.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from nav.tuning import Tuning
+
+IMU_GROUPS = ("accel_bias", "gyro_bias", "accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
+
+
+@dataclass(frozen=True)
+class Group:
+    name: str
+    slice: slice
+    estimated: bool
+    sigma0: float
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Named groups with their slices. ``groups`` keeps the order of the state vector."""
+    groups: tuple
+    n_cameras: int
+    targets: tuple
+
+    @property
+    def n(self) -> int:
+        return self.groups[-1].slice.stop
+
+    def __getitem__(self, name: str) -> slice:
+        for g in self.groups:
+            if g.name == name:
+                return g.slice
+        raise KeyError(f"state group {name!r} not in the layout; have {[g.name for g in self.groups]}")
+
+    def has(self, name: str) -> bool:
+        return any(g.name == name for g in self.groups)
+
+    def get(self, name: str):
+        return self[name] if self.has(name) else None
+
+    @property
+    def estimated_mask(self) -> np.ndarray:
+        """Boolean (n,): True for estimated states, False for considered ones."""
+        m = np.zeros(self.n, dtype=bool)
+        for g in self.groups:
+            m[g.slice] = g.estimated
+        return m
+
+    def initial_covariance(self) -> np.ndarray:
+        """Diagonal P0 from every group's sigma0."""
+        d = np.zeros(self.n)
+        for g in self.groups:
+            d[g.slice] = g.sigma0 ** 2
+        return np.diag(d)
+
+    def zeta_name(self, camera: int, target: str) -> str:
+        return f"zeta_{target}_{camera}"
+
+    def cam_name(self, camera: int) -> str:
+        return f"psi_c_{camera}"
+
+
+def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
+    """State layout for ``n_cameras`` cameras (0 allowed: GPS/INS only)."""
+    if n_cameras < 0:
+        raise ValueError(f"n_cameras: expected >= 0, got {n_cameras}")
+    groups = []
+    i = 0
+
+    def add(name, est, sigma):
+        nonlocal i
+        groups.append(Group(name, slice(i, i + 3), est, float(sigma)))
+        i += 3
+
+    add("dx", True, tuning.init_pos_sigma)
+    add("dv", True, tuning.init_vel_sigma)
+    add("psi", True, tuning.init_att_sigma)
+    for name in IMU_GROUPS:
+        g = getattr(tuning, name)
+        if g.on:
+            add(name, g.estimated, g.sigma)
+    if n_cameras:
+        if tuning.camera_misalignment.on:
+            for k in range(n_cameras):
+                add(f"psi_c_{k}", tuning.camera_misalignment.estimated, tuning.camera_misalignment.sigma)
+        if tuning.vector_gm_mode != "off":
+            for k in range(n_cameras):
+                for t in tuning.targets:
+                    add(f"zeta_{t}_{k}", tuning.vector_gm_mode == "E", tuning.gm_default_sigma)
+    return StateLayout(tuple(groups), n_cameras, tuple(tuning.targets))
+
+
+def _sk(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def gravity_gradient(x_e) -> np.ndarray:
+    """d g_e / d x_e: point-mass gravitation gradient ``GM/r^3 (3 u u^T - I)`` plus the centrifugal
+    term ``diag(w^2, w^2, 0)`` (the J2 part changes it by 0.1 %, below what the filter resolves)."""
+    from nav.earth import GM, OMEGA_E
+    x = np.asarray(x_e, float)
+    r = np.linalg.norm(x)
+    u = x / r
+    return GM / r ** 3 * (3.0 * np.outer(u, u) - np.eye(3)) + np.diag([OMEGA_E ** 2, OMEGA_E ** 2, 0.0])
+
+
+def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float) -> np.ndarray:
+    """Continuous-time error dynamics F (n, n) of the e-frame mechanisation (:mod:`nav.ins`)::
+
+        d(dx)/dt  = dv
+        d(dv)/dt  = G dx - 2 [w_ie x] dv - [(R_eb f_b) x] psi - R_eb delta_f
+        d(psi)/dt = -[w_ie x] psi - R_eb delta_w
+        d(zeta)/dt = -zeta / T_c          (003 §6.3)
+
+    with ``delta_f = b_f + diag(f_b) s_f + [f_b x] m_f`` (and the same for the gyro,
+    :mod:`nav.imu_errors`); constants (biases, scale factors, misalignments, psi_c) have zero rows.
+    """
+    from nav.earth import OMEGA_IE_E
+    n = layout.n
+    F = np.zeros((n, n))
+    ix, iv, ip = layout["dx"], layout["dv"], layout["psi"]
+    W = _sk(OMEGA_IE_E)
+    F[ix, iv] = np.eye(3)
+    F[iv, ix] = gravity_gradient(x_e)
+    F[iv, iv] = -2.0 * W
+    F[iv, ip] = -_sk(R_eb @ f_b)
+    F[ip, ip] = -W
+    sens = {"accel_bias": (iv, np.eye(3)), "accel_scale": (iv, np.diag(f_b)),
+            "accel_misalignment": (iv, _sk(f_b)), "gyro_bias": (ip, np.eye(3)),
+            "gyro_scale": (ip, np.diag(w_b)), "gyro_misalignment": (ip, _sk(w_b))}
+    for name, (row, S) in sens.items():
+        if layout.has(name):
+            F[row, layout[name]] = -R_eb @ S
+    for g in layout.groups:
+        if g.name.startswith("zeta_"):
+            F[g.slice, g.slice] = -np.eye(3) / tc
+    return F
+
+
+def nav_rows(layout: StateLayout) -> int:
+    """Number of leading states whose transition differs from identity/diagonal (dx, dv, psi)."""
+    return 9
+
+
+def discrete_transition(layout: StateLayout, F: np.ndarray, dt: float) -> np.ndarray:
+    """Phi = exp(F dt) to second order, ``I + F dt + (F dt)^2 / 2``, over the navigation rows; the
+    diagonal Gauss-Markov entries use the exact ``exp(-dt/T_c)`` (003 eq. (42) is its first-order
+    form). Constants keep identity rows."""
+    n = layout.n
+    Fd = F * dt
+    Phi = np.eye(n)
+    m = nav_rows(layout)
+    Phi[:m] += Fd[:m] + 0.5 * (Fd[:m] @ Fd)
+    for g in layout.groups:
+        if g.name.startswith("zeta_"):
+            d = np.exp(np.diag(Fd[g.slice, g.slice]))
+            Phi[g.slice, g.slice] = np.diag(d)
+    return Phi
+
+
+@dataclass
+class BlockTransition:
+    """Transition over one covariance block in the structured form the filter uses:
+    rows 0..8 (dx, dv, psi) are ``A`` (9, n); every other row is diagonal with entry ``d[i]``
+    (1 for constants, ``exp(-dt/T_c)`` for Gauss-Markov states)."""
+    A: np.ndarray
+    d: np.ndarray
+
+    def full(self) -> np.ndarray:
+        Phi = np.diag(self.d)
+        Phi[:9] = self.A
+        return Phi
+
+    def apply(self, P: np.ndarray) -> np.ndarray:
+        """``Phi P Phi^T`` exploiting the structure (2 products of (9, n) x (n, n))."""
+        M = P * self.d[:, None]
+        M[:9] = self.A @ P
+        out = M * self.d[None, :]
+        out[:, :9] = M @ self.A.T
+        return out
+
+
+@nb.njit(cache=True)
+def _nav_transition(x, R, f, w, dt, cols, n, W, GM):
+    """Rows 0..8 of Phi = I + F dt + (F dt)^2/2 (see :func:`error_dynamics`); ``cols`` (6,) holds
+    the first column of accel_bias, gyro_bias, accel_scale, accel_misalignment, gyro_scale,
+    gyro_misalignment (-1: absent)."""
+    F = np.zeros((9, n))
+    r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+    r = np.sqrt(r2)
+    k = GM / (r2 * r)
+    for i in range(3):
+        F[i, 3 + i] = 1.0
+        for j in range(3):
+            F[3 + i, j] = k * (3.0 * x[i] * x[j] / r2 - (1.0 if i == j else 0.0))
+    F[3, 0] += W * W
+    F[4, 1] += W * W
+    # -2 [w_ie x] and -[w_ie x] with w_ie = [0, 0, W]
+    F[3, 4] = 2.0 * W
+    F[4, 3] = -2.0 * W
+    F[6, 7] = W
+    F[7, 6] = -W
+    fe = R @ f
+    F[3, 7] = fe[2]; F[3, 8] = -fe[1]
+    F[4, 6] = -fe[2]; F[4, 8] = fe[0]
+    F[5, 6] = fe[1]; F[5, 7] = -fe[0]
+    for g in range(6):
+        c = cols[g]
+        if c < 0:
+            continue
+        row = 3 if (g == 0 or g == 2 or g == 3) else 6
+        v = f if row == 3 else w
+        for i in range(3):
+            for j in range(3):
+                if g <= 1:
+                    val = -R[i, j]
+                elif g == 2 or g == 4:
+                    val = -R[i, j] * v[j]
+                else:
+                    # -R [v x], column j of [v x]
+                    val = 0.0
+                    for m in range(3):
+                        skm = 0.0
+                        if m == 0 and j == 1: skm = -v[2]
+                        elif m == 0 and j == 2: skm = v[1]
+                        elif m == 1 and j == 0: skm = v[2]
+                        elif m == 1 and j == 2: skm = -v[0]
+                        elif m == 2 and j == 0: skm = -v[1]
+                        elif m == 2 and j == 1: skm = v[0]
+                        val -= R[i, m] * skm
+                F[row + i, c + j] = val
+    Fd = F * dt
+    A = Fd + 0.5 * (np.ascontiguousarray(Fd[:, :9]) @ Fd)
+    for i in range(9):
+        A[i, i] += 1.0
+    return A
+
+
+class TransitionBuilder:
+    """Builds :class:`BlockTransition` for a layout with preallocated index blocks (the fast path of
+    :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
+
+    def __init__(self, layout: StateLayout, tc: float):
+        from nav.earth import OMEGA_IE_E
+        self.n = layout.n
+        self.layout = layout
+        self.tc = tc
+        self.W = _sk(OMEGA_IE_E)
+        self.sens = [(name, layout[name]) for name in IMU_GROUPS if layout.has(name)]
+        self.cols = np.array([layout[nm].start if layout.has(nm) else -1 for nm in IMU_GROUPS], dtype=np.int64)
+        self.zeta = np.zeros(self.n, bool)
+        for g in layout.groups:
+            if g.name.startswith("zeta_"):
+                self.zeta[g.slice] = True
+
+    def __call__(self, x_e, R_eb, f_b, w_b, dt) -> BlockTransition:
+        from nav.earth import GM, OMEGA_E
+        A = _nav_transition(np.asarray(x_e, float), np.ascontiguousarray(R_eb), np.asarray(f_b, float),
+                            np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM)
+        d = np.ones(self.n)
+        d[self.zeta] = np.exp(-dt / self.tc)
+        return BlockTransition(A, d)
+
+    def reference(self, x_e, R_eb, f_b, w_b, dt) -> BlockTransition:
+        """Plain numpy version of :meth:`__call__` (kept for the tests)."""
+        n = self.n
+        Fn = np.zeros((9, n))
+        Fn[0:3, 3:6] = np.eye(3)
+        Fn[3:6, 0:3] = gravity_gradient(x_e)
+        Fn[3:6, 3:6] = -2.0 * self.W
+        Fn[3:6, 6:9] = -_sk(R_eb @ f_b)
+        Fn[6:9, 6:9] = -self.W
+        for name, sl in self.sens:
+            if name == "accel_bias":
+                Fn[3:6, sl] = -R_eb
+            elif name == "gyro_bias":
+                Fn[6:9, sl] = -R_eb
+            elif name == "accel_scale":
+                Fn[3:6, sl] = -R_eb * f_b[None, :]
+            elif name == "gyro_scale":
+                Fn[6:9, sl] = -R_eb * w_b[None, :]
+            elif name == "accel_misalignment":
+                Fn[3:6, sl] = -R_eb @ _sk(f_b)
+            else:
+                Fn[6:9, sl] = -R_eb @ _sk(w_b)
+        Fd = Fn * dt
+        A = Fd + 0.5 * (Fd[:, :9] @ Fd)
+        A[:, :9] += np.eye(9)
+        d = np.ones(n)
+        d[self.zeta] = np.exp(-dt / self.tc)
+        return BlockTransition(A, d)

@@ -1,0 +1,80 @@
+"""IMU error model and in-flight calibration (003 §6.1, table 3, generalised).
+
+Measurement model for each triad (accelerometer ``f``, gyro ``w``), to first order::
+
+    f_meas = f_true + b_f + diag(f_true) s_f + [f_true x] m_f + noise
+    w_meas = w_true + b_w + diag(w_true) s_w + [w_true x] m_w + noise
+
+``s`` are scale-factor errors, ``m`` a small-angle misalignment of the sensor triad (the sensor
+axes rotated by ``-m`` from b, so ``(I - [m x]) f = f + [f x] m``). The filter's error states
+are the residuals after calibration with the current estimates, so the corrected measurement's
+error is ``delta_f = b_f + diag(f) s_f + [f x] m_f`` (same for the gyro), and its Jacobian with
+respect to the six groups is :func:`sensitivity`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nav.checks import as_vectors
+
+
+def _sk(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+@dataclass
+class ImuCalibration:
+    """Current in-flight calibration (estimates of the error terms, SI units)."""
+    b_f: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    b_w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    s_f: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    m_f: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    s_w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    m_w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def copy(self) -> "ImuCalibration":
+        return ImuCalibration(*(getattr(self, k).copy() for k in ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w")))
+
+    def matrices(self):
+        """Affine calibration ``x_true = A (x_meas - b)`` for accel and gyro: (A_f, b_f, A_w, b_w).
+
+        ``A = (I + diag(s) - [m x])^-1``: the exact inverse of the first-order model above.
+        """
+        A_f = np.linalg.inv(np.eye(3) + np.diag(self.s_f) - _sk(self.m_f))
+        A_w = np.linalg.inv(np.eye(3) + np.diag(self.s_w) - _sk(self.m_w))
+        return A_f, self.b_f.copy(), A_w, self.b_w.copy()
+
+
+GROUP_TO_FIELD = {"accel_bias": "b_f", "gyro_bias": "b_w", "accel_scale": "s_f",
+                  "accel_misalignment": "m_f", "gyro_scale": "s_w", "gyro_misalignment": "m_w"}
+
+
+def apply_calibration(f_meas, w_meas, cal: ImuCalibration):
+    """Calibrated specific force and angular rate, ``A (x_meas - b)``, vectorised over samples."""
+    f = as_vectors(f_meas, "f_meas")
+    w = as_vectors(w_meas, "w_meas")
+    A_f, b_f, A_w, b_w = cal.matrices()
+    return (f - b_f) @ A_f.T, (w - b_w) @ A_w.T
+
+
+def corrupt(f_true, w_true, *, b_f=0, b_w=0, s_f=0, m_f=0, s_w=0, m_w=0):
+    """Apply the measurement model above (without noise) to true samples; for simulations/tests."""
+    f = as_vectors(f_true, "f_true")
+    w = as_vectors(w_true, "w_true")
+    b_f, b_w, s_f, m_f, s_w, m_w = (np.broadcast_to(np.asarray(a, float), (3,)) for a in (b_f, b_w, s_f, m_f, s_w, m_w))
+    return (f + b_f + f * s_f + np.cross(f, m_f), w + b_w + w * s_w + np.cross(w, m_w))
+
+
+def sensitivity(v) -> dict:
+    """Jacobians of the calibrated-measurement error with respect to the error groups at sample
+    value ``v`` (3,): {"bias": I, "scale": diag(v), "misalignment": [v x]}."""
+    v = np.asarray(v, float)
+    return {"bias": np.eye(3), "scale": np.diag(v), "misalignment": _sk(v)}
+
+
+def feedback(cal: ImuCalibration, group: str, dx: np.ndarray) -> None:
+    """Add the filter's estimate of a residual error group to the calibration (closed loop)."""
+    name = GROUP_TO_FIELD[group]
+    setattr(cal, name, getattr(cal, name) + dx)

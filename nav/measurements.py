@@ -1,0 +1,134 @@
+"""Observation equations of the navigation filter: GPS and camera direction vectors (003 §6.2-6.3).
+
+Conventions (CONVENTIONS.md): ``psi`` in e with ``R_eb_true = (I + [psi x]) R_eb_est``; camera
+misalignment ``psi_c`` in b with ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50)).
+Error states are "true minus estimated", innovations "measured minus predicted" (003 eq. (40)), so
+``s = H z + noise`` with the Jacobians below.
+
+Vectors (003 eqs. (39), (47), (48)). With ``u_e`` the unit direction in e (nadir
+``-x/|x|`` or the Sun ``(X - x)/|X - x|``) and ``e_c = R_bc^T R_eb^T u_e``::
+
+    H_psi   = R_bc^T R_eb^T [u_e x]                (003 eq. (48), first two lines)
+    H_psi_c = R_bc^T [(R_eb^T u_e) x] = [e_c x] R_bc^T
+    H_zeta  = I                                    (003 eq. (47))
+
+003 eq. (48) writes the misalignment block as ``[e_c x]``: that is the same Jacobian with psi_c
+expressed in the camera frame; here psi_c is in b to match eq. (50), hence the extra ``R_bc^T``.
+003 neglects the position dependence; :func:`vector_jacobians` returns it too
+(``H_dx = -R_bc^T R_eb^T (I - u u^T) / |x|`` for the nadir, about 1.5e-7 rad/m: small, kept).
+
+A unit vector has two degrees of freedom, so the filter updates in the plane tangent to the
+predicted vector (:func:`tangent_basis`): ``s2 = T^T s``, ``H2 = T^T H``, ``R2 = T^T R T``; this
+is eq. (49) projected and makes the NIS chi-square with 2 degrees of freedom even when P_c from
+003 eq. (33) is singular along the vector.
+
+GPS (antenna at lever arm ``l_b`` in b)::
+
+    x_ant = x_e + R_eb l_b            H = [I, 0, -[(R_eb l_b) x]]
+    v_ant = v_e + R_eb (omega_eb_b x l_b)
+                                      H = [0, I, -[(R_eb (omega_eb_b x l_b)) x]]
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nav.rotation import rotvec_to_matrix
+
+
+def _sk(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def target_direction_e(target: str, x_e, target_pos_e=None) -> np.ndarray:
+    """Unit direction in e from the vehicle at ``x_e`` to the target (003 eq. (39))."""
+    x = np.asarray(x_e, float)
+    if target == "hor":
+        return -x / np.linalg.norm(x)
+    if target_pos_e is None:
+        raise ValueError(f"target_pos_e: the {target} direction needs the body's position in e")
+    d = np.asarray(target_pos_e, float) - x
+    return d / np.linalg.norm(d)
+
+
+def predict_vector(u_e, R_eb, R_bc) -> np.ndarray:
+    """Predicted camera-frame unit vector ``e_c = R_bc^T R_eb^T u_e`` (003 eq. (39))."""
+    return R_bc.T @ (R_eb.T @ u_e)
+
+
+def vector_jacobians(target: str, x_e, u_e, R_eb, R_bc, target_pos_e=None):
+    """Jacobians of the vector error (003 eqs. (47)-(48)) w.r.t. dx, psi and psi_c (b-frame).
+
+    Returns
+    -------
+    H_dx, H_psi, H_psic : (3, 3) each
+    """
+    R_ce = R_bc.T @ R_eb.T
+    e_c = R_ce @ u_e
+    H_psi = R_ce @ _sk(u_e)
+    H_psic = _sk(e_c) @ R_bc.T
+    x = np.asarray(x_e, float)
+    if target == "hor":
+        dist = np.linalg.norm(x)
+        H_dx = -R_ce @ (np.eye(3) - np.outer(u_e, u_e)) / dist
+    else:
+        dist = np.linalg.norm(np.asarray(target_pos_e, float) - x)
+        H_dx = -R_ce @ (np.eye(3) - np.outer(u_e, u_e)) / dist
+    return H_dx, H_psi, H_psic
+
+
+def innovation(measured, predicted) -> np.ndarray:
+    """003 eq. (40): measured minus predicted."""
+    return np.asarray(measured, float) - np.asarray(predicted, float)
+
+
+def innovation_covariance(H, P, R) -> np.ndarray:
+    """003 eq. (49): ``S = H P H^T + R`` (symmetrised)."""
+    S = H @ P @ H.T + R
+    return 0.5 * (S + S.T)
+
+
+def tangent_basis(e) -> np.ndarray:
+    """(3, 2) orthonormal basis of the plane perpendicular to the unit vector ``e``."""
+    e = np.asarray(e, float) / np.linalg.norm(e)
+    a = np.array([1.0, 0.0, 0.0]) if abs(e[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = _sk(e) @ a
+    t1 /= np.linalg.norm(t1)
+    return np.stack([t1, _sk(e) @ t1], axis=1)
+
+
+def correct_mounting(R_bc, psi_c) -> np.ndarray:
+    """003 eq. (50): ``(I + [psi_c x]) R_bc`` in its exact, orthonormal form ``exp([psi_c x]) R_bc``."""
+    return rotvec_to_matrix(np.asarray(psi_c, float)) @ R_bc
+
+
+def vector_covariance_problem(P_c, e_c) -> str | None:
+    """Why a vision covariance is unusable, or None. Accepted: finite, symmetric (1e-9 relative),
+    positive semi-definite, and positive definite in the plane tangent to the vector."""
+    P = np.asarray(P_c, float)
+    if P.shape != (3, 3):
+        return f"covariance shape {P.shape}, expected (3, 3)"
+    if not np.all(np.isfinite(P)):
+        return "non-finite covariance"
+    scale = max(np.max(np.abs(P)), 1e-300)
+    if np.max(np.abs(P - P.T)) > 1e-9 * scale:
+        return "non-symmetric covariance"
+    ev = np.linalg.eigvalsh(0.5 * (P + P.T))
+    if ev[0] < -1e-9 * scale:
+        return "covariance not positive semi-definite"
+    T = tangent_basis(e_c)
+    if np.linalg.eigvalsh(T.T @ P @ T)[0] <= 1e-12 * scale:
+        return "covariance not positive definite across the vector"
+    return None
+
+
+def gps_position(x_e, R_eb, lever_b):
+    """Predicted antenna position and its Jacobians (H_dx, H_psi)."""
+    r = R_eb @ np.asarray(lever_b, float)
+    return np.asarray(x_e, float) + r, np.eye(3), -_sk(r)
+
+
+def gps_velocity(v_e, R_eb, w_eb_b, lever_b):
+    """Predicted antenna velocity and its Jacobians (H_dv, H_psi); the gyro-error dependence of
+    the lever-arm term (|l| * gyro error, micrometres per second) is neglected."""
+    r = R_eb @ (_sk(np.asarray(w_eb_b, float)) @ np.asarray(lever_b, float))
+    return np.asarray(v_e, float) + r, np.eye(3), -_sk(r)

@@ -1,0 +1,587 @@
+"""The navigation run: IMU samples and measurements through the INS and the Schmidt-Kalman filter
+(003 §6, fig. 29), closed loop, with per-epoch outputs.
+
+Processing
+----------
+* IMU samples are cleaned first (vectorised): samples whose time does not increase are dropped;
+  non-finite and saturated samples (at or beyond the tuning's ranges) are replaced by the last good
+  sample; gaps longer than ``tuning.max_imu_gap_s`` are counted (the INS integrates across them
+  and the covariance grows with the gap). Each case is counted in ``NavResult.rejected`` and logged.
+* The INS (:func:`nav.ins.ins_kernel`) runs over blocks of samples. A block ends at the sample
+  at/just before the next measurement or after ``tuning.max_cov_interval_s`` (default 0.1 s: at
+  most 10 covariance propagations per second; with 10 Hz GPS every GPS interval is one block).
+  Over a block the transition is ``Phi = I + F dt + (F dt)^2/2`` with F evaluated once, with the
+  block-mean calibrated specific force and rate and the attitude at the block's end
+  (:func:`nav.error_state.error_dynamics`; the fast path is
+  :class:`nav.error_state.TransitionBuilder`), and the white process noise is added as
+  ``q dt``. Effect of this choice: in the coast (rates < 1 deg/s, |f| of a few mg) the
+  attitude moves < 0.1 deg in a block, so F is constant to 2e-3 relative and the neglected
+  third-order terms are ~1e-9 of the state; on the atek coast (20 Hz IMU, 10 Hz GPS, table 3
+  tuning) 0.05 s instead of 0.1 s changed the final attitude sigma by 6e-6 relative and the RMS
+  attitude error by 3e-5 relative, at twice the propagations. In spinning or powered flight
+  (3.6 Hz spin: 130 deg per 0.1 s) R_eb varies inside a block and the bias / attitude couplings
+  would be misrepresented: use an interval of a few ms there (the tuning's
+  ``[filter] max_cov_interval_s``). The structure is exploited: only the 9 navigation rows of Phi
+  are dense (a (9, n) block), constants have identity rows and the Gauss-Markov states diagonal
+  ones (:class:`nav.error_state.BlockTransition`).
+* A measurement stamped between two IMU samples is compared with the state at the preceding sample
+  extrapolated to its time (position to second order, velocity first order, attitude with the
+  current rate), so GPS at a time off the IMU grid does not see the vehicle's 1.8 km/s x 50 ms.
+* Measurements in each stream must be time ordered; one that is not later than its predecessor in
+  the same stream is rejected ("out_of_order"). GPS and vectors pass a chi-square gate
+  (``tuning.gate_probability``); vectors with an unusable covariance are rejected with the reason
+  from :func:`nav.measurements.vector_covariance_problem`.
+* After every accepted update the estimated errors are fed back (position, velocity, attitude,
+  the estimated IMU errors into the calibration, camera misalignments into the mountings, 003
+  eq. (50)) and the error state is reset to zero.
+
+Outputs (:class:`NavResult`): the solution at every IMU sample (post-correction at update epochs),
+the covariance diagonal at every covariance epoch and the full covariance at measurement epochs,
+the unaided INS from the same start, each measurement's innovation, S and NIS (accepted or not),
+camera misalignment estimates with their sigma, TRIAD attitudes wherever a horizon and a Sun
+vector share a time stamp, and the reject counts by reason.
+"""
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nav import ins
+from nav.earth import OMEGA_E
+from nav.ephemeris import moon_position_e, sun_position_e
+from nav.error_state import StateLayout, TransitionBuilder, build_layout
+from nav.gauss_markov import gm_transition
+from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
+from nav.measurements import (gps_position, gps_velocity, predict_vector,
+                              tangent_basis, target_direction_e, vector_covariance_problem,
+                              vector_jacobians)
+from nav.rotation import angle_between, matrix_to_quat, matrix_to_rotvec, quat_to_matrix, triad
+from nav.schmidt import chi2_gate, schmidt_update, symmetrize
+from nav.tuning import Tuning
+
+log = logging.getLogger(__name__)
+
+NS = 1_000_000_000
+
+
+@dataclass
+class ImuData:
+    """IMU samples: time [int ns UTC], specific force f_b [m/s^2], angular rate omega_ib_b [rad/s].
+    ``sample``: "average" (each sample is the mean over the interval ending at its time, as from
+    increments / dt) or "point" (instantaneous values); see :func:`nav.ins.ins_kernel`."""
+    t_ns: np.ndarray
+    f_b: np.ndarray
+    w_b: np.ndarray
+    sample: str = "average"
+
+
+@dataclass
+class GpsData:
+    """GPS fixes: antenna position and velocity in e with covariances (velocity may be None)."""
+    t_ns: np.ndarray
+    x_e: np.ndarray
+    P_x: np.ndarray
+    v_e: np.ndarray | None = None
+    P_v: np.ndarray | None = None
+
+
+@dataclass
+class VectorData:
+    """Camera direction vectors: camera index, target ("hor", "sun", "moon"), unit vector e_c in
+    the camera frame and its covariance P_c (003 eq. (33))."""
+    t_ns: np.ndarray
+    camera: np.ndarray
+    target: np.ndarray
+    e_c: np.ndarray
+    P_c: np.ndarray
+
+
+@dataclass
+class InitialState:
+    t_ns: int
+    x_e: np.ndarray
+    v_e: np.ndarray
+    q_eb: np.ndarray
+    P0: np.ndarray | None = None  #: optional full initial covariance (layout order)
+
+
+@dataclass
+class Innovation:
+    t_ns: int
+    kind: str          #: "gps_pos", "gps_vel", "hor", "sun", "moon"
+    camera: int        #: -1 for GPS
+    s: np.ndarray      #: innovation (tangent-plane 2-vector for camera vectors)
+    S: np.ndarray      #: predicted innovation covariance
+    nis: float
+    accepted: bool
+    reason: str | None
+
+
+@dataclass
+class SmootherStore:
+    """What the RTS smoother needs, per covariance epoch k (k = 0 is the start)."""
+    idx: list = field(default_factory=list)       #: IMU sample index of the epoch
+    Phi: list = field(default_factory=list)       #: transition from epoch k-1 to k (None at k=0)
+    P_prior: list = field(default_factory=list)
+    P_post: list = field(default_factory=list)    #: None where no update happened (= P_prior)
+    dx: list = field(default_factory=list)        #: correction fed back at the epoch (None if none)
+
+
+@dataclass
+class NavResult:
+    layout: StateLayout
+    t_ns: np.ndarray          #: IMU sample times (after cleaning)
+    x_e: np.ndarray
+    v_e: np.ndarray
+    q_eb: np.ndarray
+    cov_t_ns: np.ndarray      #: covariance epochs
+    cov_idx: np.ndarray       #: IMU sample index of each covariance epoch
+    P_diag: np.ndarray        #: (K, n) covariance diagonal at each epoch (after any update)
+    meas_t_ns: np.ndarray     #: epochs with at least one accepted update
+    P_full: np.ndarray        #: (M, n, n) full covariance after the updates at meas_t_ns
+    unaided_x_e: np.ndarray
+    unaided_v_e: np.ndarray
+    unaided_q_eb: np.ndarray
+    innovations: list
+    misalignment_t_ns: np.ndarray
+    misalignment: np.ndarray  #: (M, n_cam, 3) accumulated psi_c estimate (b-frame rotation vector)
+    misalignment_sigma: np.ndarray
+    triad_t_ns: np.ndarray
+    triad_q_eb: np.ndarray
+    rejected: dict
+    calibration: ImuCalibration
+    R_bc: np.ndarray          #: final mounting estimates
+    store: SmootherStore | None
+
+    def nis(self, kind: str) -> np.ndarray:
+        return np.array([i.nis for i in self.innovations if i.kind == kind and i.accepted])
+
+
+def _clean_imu(imu: ImuData, tuning: Tuning, rejected: Counter):
+    t = np.asarray(imu.t_ns, dtype=np.int64)
+    f = np.array(imu.f_b, dtype=float)
+    w = np.array(imu.w_b, dtype=float)
+    if t.ndim != 1 or f.shape != (t.size, 3) or w.shape != (t.size, 3):
+        raise ValueError(f"imu: expected t_ns (N,), f_b and w_b (N, 3); got {t.shape}, {f.shape}, {w.shape}")
+    # drop samples whose time is not later than the running maximum
+    keep = np.ones(t.size, bool)
+    if t.size > 1:
+        runmax = np.maximum.accumulate(t)
+        keep[1:] = t[1:] > runmax[:-1]
+    if (~keep).sum():
+        rejected["imu_time_not_increasing"] += int((~keep).sum())
+        log.warning("IMU: %d samples dropped whose time stamp does not increase", (~keep).sum())
+    t, f, w = t[keep], f[keep], w[keep]
+    bad_nf = ~(np.all(np.isfinite(f), axis=1) & np.all(np.isfinite(w), axis=1))
+    with np.errstate(invalid="ignore"):
+        bad_sat = ~bad_nf & ((np.max(np.abs(w), axis=1) >= tuning.gyro_range)
+                             | (np.max(np.abs(f), axis=1) >= tuning.accel_range))
+    for name, m in (("imu_nonfinite", bad_nf), ("imu_saturated", bad_sat)):
+        if m.any():
+            rejected[name] += int(m.sum())
+            log.warning("IMU: %d %s samples replaced by the last good sample", m.sum(), name[4:])
+    bad = bad_nf | bad_sat
+    if bad.any():
+        good_idx = np.where(~bad, np.arange(t.size), -1)
+        good_idx = np.maximum.accumulate(good_idx)
+        first_good = np.flatnonzero(~bad)
+        if first_good.size == 0:
+            raise ValueError("imu: no finite, unsaturated sample")
+        good_idx[good_idx < 0] = first_good[0]
+        f, w = f[good_idx], w[good_idx]
+    gaps = np.diff(t) > tuning.max_imu_gap_s * NS
+    if gaps.any():
+        rejected["imu_time_gap"] += int(gaps.sum())
+        log.warning("IMU: %d time gaps longer than %.3g s", gaps.sum(), tuning.max_imu_gap_s)
+    return t, np.ascontiguousarray(f), np.ascontiguousarray(w)
+
+
+def _events(gps: GpsData | None, vec: VectorData | None, rejected: Counter):
+    """Time-ordered list of (t_ns, kind, index). A stream is GPS, or one (camera, target) pair of
+    the vectors; a sample not later than its predecessor in the same stream is rejected."""
+    ev = []
+    for kind, data in (("gps", gps), ("vec", vec)):
+        if data is None:
+            continue
+        t = np.asarray(data.t_ns, dtype=np.int64)
+        keys = (np.zeros(t.size, int) if kind == "gps"
+                else [(int(c), str(g)) for c, g in zip(data.camera, data.target)])
+        last = {}
+        for i, ti in enumerate(t):
+            key = keys[i]
+            if key in last and ti <= last[key]:
+                rejected[f"{kind}_out_of_order"] += 1
+                log.warning("%s measurement %d at %d ns is not later than its predecessor: rejected", kind, i, ti)
+                continue
+            last[key] = ti
+            ev.append((int(ti), 0 if kind == "gps" else 1, i))
+    ev.sort()
+    return ev
+
+
+def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None = None,
+        vectors: VectorData | None = None, R_bc=(), lever_b=(0.0, 0.0, 0.0),
+        store_for_smoother: bool = True, unaided: bool = True) -> NavResult:
+    """Run the integrated navigation from ``init.t_ns`` to the last IMU sample.
+
+    Parameters
+    ----------
+    imu : ImuData
+    init : InitialState
+        Initial x_e, v_e, q_eb (e.g. GPS and :func:`nav.initialise.triad_initialise`).
+    tuning : Tuning
+    gps, vectors : optional measurement streams.
+    R_bc : sequence of (3, 3)
+        Nominal camera mountings, one per camera index used in ``vectors``.
+    lever_b : (3,)
+        GPS antenna position in b relative to the IMU [m].
+    store_for_smoother : bool
+        Keep what :func:`nav.smoother.rts_smooth` needs (2 full covariances and a transition per
+        covariance epoch: about 50 KB per epoch for 45 states).
+    """
+    rejected: Counter = Counter()
+    t_all, f_all, w_all = _clean_imu(imu, tuning, rejected)
+    i_start = int(np.searchsorted(t_all, init.t_ns, side="left"))
+    if i_start >= t_all.size - 1:
+        raise ValueError("init.t_ns: the start time is at or after the last IMU sample")
+    t_ns = t_all[i_start:]
+    f_b, w_b = f_all[i_start:], w_all[i_start:]
+    if t_ns[0] != init.t_ns:
+        raise ValueError(f"init.t_ns: must coincide with an IMU sample time (nearest is {t_ns[0]})")
+    N = t_ns.size
+    ts = (t_ns - t_ns[0]).astype(np.float64) / NS
+    R_bc_nom = [np.asarray(R, float) for R in R_bc]
+    n_cam = len(R_bc_nom)
+    R_bc_est = [R.copy() for R in R_bc_nom]
+    layout = build_layout(tuning, n_cam)
+    n = layout.n
+    est_mask = layout.estimated_mask
+    P = layout.initial_covariance() if init.P0 is None else symmetrize(np.asarray(init.P0, float))
+    if P.shape != (n, n):
+        raise ValueError(f"init.P0: expected ({n}, {n}) for this layout, got {P.shape}")
+    tc = tuning.correlation_time_s
+    zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
+    P_c_latest = {g.name: np.eye(3) * tuning.gm_default_sigma ** 2 for g in zeta_groups}
+    last_seen = {}
+    zeta_hat = {g.name: np.zeros(3) for g in zeta_groups}
+    lever = np.asarray(lever_b, float)
+
+    events = _events(gps, vectors, rejected)
+    # measurements outside the run
+    kept = []
+    for e in events:
+        if e[0] < t_ns[0]:
+            rejected["before_start"] += 1
+        elif e[0] > t_ns[-1]:
+            rejected["after_end"] += 1
+        else:
+            kept.append(e)
+    events = kept
+    ev_t = np.array([e[0] for e in events], dtype=np.int64)
+    ev_idx = np.searchsorted(t_ns, ev_t, side="right") - 1  # sample at or before the measurement
+
+    # Sun / Moon positions for all vector measurements at once
+    body_pos = {}
+    if vectors is not None and len(vectors.t_ns):
+        vt = np.asarray(vectors.t_ns, dtype=np.int64)
+        tg = np.asarray(vectors.target)
+        for name, fn in (("sun", sun_position_e), ("moon", moon_position_e)):
+            m = tg == name
+            if m.any():
+                pos = np.full((vt.size, 3), np.nan)
+                pos[m] = fn(vt[m])
+                body_pos[name] = pos
+
+    cal = ImuCalibration()
+    X = np.empty((N, 3)); V = np.empty((N, 3)); Q = np.empty((N, 4))
+    x = np.asarray(init.x_e, float).copy(); v = np.asarray(init.v_e, float).copy()
+    q = matrix_to_quat(quat_to_matrix(init.q_eb)).copy()
+    stats = np.empty(6)
+    max_block = max(1, int(round(tuning.max_cov_interval_s / max(np.median(np.diff(ts)), 1e-9))))
+    qa2, qg2 = tuning.accel_white ** 2, tuning.gyro_white ** 2
+    iv, ip = layout["dv"], layout["psi"]
+    builder = TransitionBuilder(layout, tc)
+    diag_n = np.arange(n)
+    Qd_rate = np.zeros(n)
+    Qd_rate[iv] = qa2
+    Qd_rate[ip] = qg2
+    gate2 = chi2_gate(2, tuning.gate_probability)
+    gate3 = chi2_gate(3, tuning.gate_probability)
+
+    cov_idx = [0]; P_diag = [np.diag(P).copy()]
+    meas_t, P_full = [], []
+    mis_t, mis, mis_sig = [], [], []
+    tri_t, tri_in = [], []
+    innovations = []
+    store = SmootherStore() if store_for_smoother else None
+    if store is not None:
+        store.idx.append(0); store.Phi.append(None); store.P_prior.append(P.copy())
+        store.P_post.append(None); store.dx.append(None)
+
+    A_f, b_f, A_w, b_w = cal.matrices()
+    if imu.sample not in ("point", "average"):
+        raise ValueError(f"imu.sample: expected 'point' or 'average', got {imu.sample!r}")
+    avg = imu.sample == "average"
+    affine_estimated = any(g.estimated and g.name in ("accel_scale", "accel_misalignment", "gyro_scale",
+                                                     "gyro_misalignment") for g in layout.groups)
+    k = 0
+    e_ptr = 0
+    X[0] = x; V[0] = v; Q[0] = q
+    while True:
+        # measurements at the current sample: each is checked and gated on its own (its NIS with
+        # the prior P), then all accepted ones are applied in one Schmidt update
+        upd_dx = np.zeros(n)
+        updated = False
+        group_vecs = {}
+        cands = []
+        while e_ptr < len(events) and ev_idx[e_ptr] == k:
+            t_m, kind, j = events[e_ptr]
+            dt_m = (t_m - t_ns[k]) / NS
+            e_ptr += 1
+            R_eb = ins.quat_to_R(q)
+            kk = min(k + 1, N - 1) if avg else k  # the sample covering (t_k, t_m]
+            w_eb = w_b[kk] - R_eb[2] * OMEGA_E
+            if dt_m:
+                g = ins._gravity(x[0], x[1], x[2])
+                acc = R_eb @ f_b[kk] + np.array(g) + 2 * OMEGA_E * np.array([v[1], -v[0], 0.0])
+                x_m = x + v * dt_m + 0.5 * acc * dt_m ** 2
+                v_m = v + acc * dt_m
+                R_m = R_eb @ ins.rotvec_to_R(w_eb * dt_m)
+            else:
+                x_m, v_m, R_m = x, v, R_eb
+            if kind == 0:
+                new_c = _gps_rows(gps, j, x_m, v_m, R_m, w_eb, lever, layout)
+            else:
+                new_c, P = _vector_rows(vectors, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest,
+                                        last_seen, zeta_hat, tuning, t_m, group_vecs)
+            cands.extend((t_m,) + c for c in new_c)
+        if cands:
+            rows = []
+            for t_m, kind, cam, H, R, s_, bad in cands:
+                nis = np.nan
+                S = np.full(R.shape, np.nan)
+                if bad is None:
+                    S = symmetrize(H @ P @ H.T + R)
+                    try:
+                        L = np.linalg.cholesky(S)
+                        y = np.linalg.solve(L, s_)
+                        nis = float(y @ y)
+                        if nis > (gate3 if s_.size == 3 else gate2):
+                            bad = "chi-square gate"
+                    except np.linalg.LinAlgError:
+                        bad = "innovation covariance not positive definite"
+                innovations.append(Innovation(t_m, kind, cam, s_, S, nis, bad is None, bad))
+                if bad is None:
+                    rows.append((H, R, s_))
+                else:
+                    rejected[f"{kind}_{bad}"] += 1
+                    log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
+            if rows:
+                H = np.vstack([r[0] for r in rows])
+                s_all = np.concatenate([r[2] for r in rows])
+                m = s_all.size
+                R_all = np.zeros((m, m))
+                o = 0
+                for r in rows:
+                    d = r[2].size
+                    R_all[o:o + d, o:o + d] = r[1]
+                    o += d
+                res = schmidt_update(P, H, R_all, s_all, est_mask)
+                if res.accepted:
+                    P = res.P
+                    upd_dx = res.dx
+                    updated = True
+                    x, v, q, A = _feedback(res.dx, layout, x, v, q, cal, R_bc_est, zeta_hat)
+                    if A:
+                        if affine_estimated:
+                            A_f, b_f, A_w, b_w = cal.matrices()
+                        else:  # only biases estimated: A stays the identity
+                            b_f, b_w = cal.b_f.copy(), cal.b_w.copy()
+                else:
+                    rejected[f"batch_{res.reason}"] += 1
+                    log.warning("update at %d ns rejected: %s", t_ns[k], res.reason)
+        for tm, vecs in group_vecs.items():
+            if "hor" in vecs and "sun" in vecs:
+                tri_t.append(tm)
+                tri_in.append((vecs["hor"][0], vecs["sun"][0], vecs["hor"][1], vecs["sun"][1]))
+        if updated:
+            X[k] = x; V[k] = v; Q[k] = q
+            P_diag[-1] = np.diag(P).copy()
+            meas_t.append(int(t_ns[k])); P_full.append(P.copy())
+            if n_cam:
+                mis_t.append(int(t_ns[k]))
+                mis.append([R_bc_est[c] @ R_bc_nom[c].T for c in range(n_cam)])
+                mis_sig.append([np.sqrt(np.diag(P)[layout[f"psi_c_{c}"]]) if layout.has(f"psi_c_{c}")
+                                else np.zeros(3) for c in range(n_cam)])
+            if store is not None:
+                store.P_post[-1] = P.copy()
+                store.dx[-1] = upd_dx
+        if k >= N - 1:
+            break
+        # next block
+        k_end = min(k + max_block, N - 1)
+        if e_ptr < len(events):
+            k_end = min(k_end, max(int(ev_idx[e_ptr]), k + 1))
+        ins.ins_kernel(x, v, q, ts, f_b, w_b, k, k_end, A_f, b_f, A_w, b_w, X, V, Q, stats, avg)
+        dt = ts[k_end] - ts[k]
+        trans = builder(x, ins.quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt)
+        P = trans.apply(P)
+        P[diag_n, diag_n] += Qd_rate * dt
+        phi_gm = gm_transition(dt, tc)  # 003 eqs. (41)-(45): P_zeta += (1 - phi^2) P_c
+        for g in zeta_groups:
+            P[g.slice, g.slice] += (1.0 - phi_gm ** 2) * P_c_latest[g.name]
+            zeta_hat[g.name] *= phi_gm
+        P = symmetrize(P)
+        k = k_end
+        cov_idx.append(k); P_diag.append(np.diag(P).copy())
+        if store is not None:
+            store.idx.append(k); store.Phi.append(trans); store.P_prior.append(P.copy())
+            store.P_post.append(None); store.dx.append(None)
+
+    if unaided:
+        UX, UV, UQ = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, f_b, w_b, sample=imu.sample)
+    else:
+        UX = UV = UQ = np.empty((0, 3))
+    for reason, cnt in sorted(rejected.items()):
+        log.info("rejected %s: %d", reason, cnt)
+    cov_idx = np.array(cov_idx)
+    tri_q = np.empty((0, 4))
+    if tri_in:
+        a = [np.array([r[i] for r in tri_in]) for i in range(4)]
+        # pairs closer than 1 deg to parallel are left out (TRIAD is ill-conditioned there)
+        ang = angle_between(a[0], a[1])
+        ok = np.minimum(ang, np.pi - ang) > np.radians(1.0)
+        tri_t = np.array(tri_t, dtype=np.int64)[ok]
+        tri_q = matrix_to_quat(triad(*(x[ok] for x in a))) if ok.any() else tri_q
+    mis = matrix_to_rotvec(np.array(mis).reshape(-1, 3, 3)).reshape(-1, n_cam, 3) if mis else np.zeros((0, n_cam, 3))
+    return NavResult(
+        layout=layout, t_ns=t_ns, x_e=X, v_e=V, q_eb=Q, cov_t_ns=t_ns[cov_idx], cov_idx=cov_idx,
+        P_diag=np.array(P_diag), meas_t_ns=np.array(meas_t, dtype=np.int64),
+        P_full=np.array(P_full, float).reshape(len(meas_t), n, n), unaided_x_e=UX, unaided_v_e=UV, unaided_q_eb=UQ,
+        innovations=innovations, misalignment_t_ns=np.array(mis_t, dtype=np.int64),
+        misalignment=mis, misalignment_sigma=np.array(mis_sig, float).reshape(len(mis_t), n_cam, 3),
+        triad_t_ns=np.array(tri_t, dtype=np.int64), triad_q_eb=np.array(tri_q).reshape(-1, 4),
+        rejected=dict(rejected), calibration=cal, R_bc=np.array(R_bc_est, float).reshape(n_cam, 3, 3), store=store)
+
+
+def _feedback(dx, layout, x, v, q, cal, R_bc_est, zeta_hat):
+    """Closed-loop correction of the nominal state with the estimated errors; returns whether the
+    IMU calibration changed."""
+    x = x + dx[layout["dx"]]
+    v = v + dx[layout["dv"]]
+    q = ins.R_to_quat(ins.rotvec_to_R(np.ascontiguousarray(dx[layout["psi"]])) @ ins.quat_to_R(q))
+    changed = False
+    for g in layout.groups:
+        if not g.estimated:
+            continue
+        if g.name in GROUP_TO_FIELD:
+            name = GROUP_TO_FIELD[g.name]
+            setattr(cal, name, getattr(cal, name) + dx[g.slice])
+            changed = True
+        elif g.name.startswith("psi_c_"):
+            c = int(g.name[6:])
+            R_bc_est[c] = ins.rotvec_to_R(np.ascontiguousarray(dx[g.slice])) @ R_bc_est[c]  # 003 eq. (50)
+        elif g.name.startswith("zeta_"):
+            zeta_hat[g.name] += dx[g.slice]
+    return np.ascontiguousarray(x), np.ascontiguousarray(v), np.ascontiguousarray(q), changed
+
+
+def _gps_rows(gps, j, x_m, v_m, R_m, w_eb, lever, layout):
+    """Candidate rows (kind, camera, H, R, s, reason) of a GPS fix."""
+    n = layout.n
+    out = []
+    pred, Hx, Hpsi = gps_position(x_m, R_m, lever)
+    H = np.zeros((3, n)); H[:, layout["dx"]] = Hx; H[:, layout["psi"]] = Hpsi
+    xg = np.asarray(gps.x_e[j], float)
+    Px = np.asarray(gps.P_x[j], float)
+    out.append(("gps_pos", -1, H, Px, xg - pred, _cov3_problem(xg, Px)))
+    if gps.v_e is not None:
+        vg = np.asarray(gps.v_e[j], float)
+        Pv = np.asarray(gps.P_v[j], float)
+        pred, Hv, Hpsi = gps_velocity(v_m, R_m, w_eb, lever)
+        H = np.zeros((3, n)); H[:, layout["dv"]] = Hv; H[:, layout["psi"]] = Hpsi
+        out.append(("gps_vel", -1, H, Pv, vg - pred, _cov3_problem(vg, Pv)))
+    return out
+
+
+_COV_OK: dict = {}
+
+
+def _cov3_problem(z, R):
+    key = R.tobytes()
+    if key in _COV_OK:  # the same covariance was checked before (GPS repeats it every fix)
+        return None if np.all(np.isfinite(z)) else "non-finite"
+    if not (np.all(np.isfinite(z)) and np.all(np.isfinite(R))):
+        return "non-finite"
+    if np.max(np.abs(R - R.T)) > 1e-9 * max(np.max(np.abs(R)), 1e-300):
+        return "non-symmetric covariance"
+    try:
+        np.linalg.cholesky(R)
+    except np.linalg.LinAlgError:
+        return "covariance not positive definite"
+    if len(_COV_OK) < 1000:
+        _COV_OK[key] = True
+    return None
+
+
+def _vector_rows(vec, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest, last_seen, zeta_hat,
+                 tuning, t_m, group_vecs):
+    """Candidate 2-row tangent-plane measurement of one camera vector, and P (with the
+    Gauss-Markov block restarted at a first or stale sighting)."""
+    cam = int(vec.camera[j])
+    target = str(vec.target[j])
+    n = layout.n
+    nan = (np.full((2, n), np.nan), np.eye(2), np.full(2, np.nan))
+    if not (0 <= cam < len(R_bc_est)):
+        return [(target, cam) + nan + ("unknown camera",)], P
+    if target not in layout.targets:
+        return [(target, cam) + nan + ("target not modelled",)], P
+    e_c = np.asarray(vec.e_c[j], float)
+    P_c = np.asarray(vec.P_c[j], float)
+    nrm = np.linalg.norm(e_c) if np.all(np.isfinite(e_c)) else np.nan
+    if not np.isfinite(nrm) or nrm == 0:
+        return [(target, cam) + nan + ("non-finite vector",)], P
+    e_c = e_c / nrm
+    bad = vector_covariance_problem(P_c, e_c)
+    if bad:
+        return [(target, cam) + nan + (bad,)], P
+    P_c = 0.5 * (P_c + P_c.T)
+    R_bc = R_bc_est[cam]
+    tpos = body_pos[target][j] if target in body_pos else None
+    u_e = target_direction_e(target, x_m, tpos)
+    zname = layout.zeta_name(cam, target)
+    has_z = layout.has(zname)
+    pred = predict_vector(u_e, R_m, R_bc)
+    if has_z:
+        pred = pred + zeta_hat[zname]
+    T = tangent_basis(pred)
+    H_dx, H_psi, H_psic = vector_jacobians(target, x_m, u_e, R_m, R_bc, tpos)
+    H3 = np.zeros((3, n))
+    H3[:, layout["dx"]] = H_dx
+    H3[:, layout["psi"]] = H_psi
+    cname = layout.cam_name(cam)
+    if layout.has(cname):
+        H3[:, layout[cname]] = H_psic
+    R3 = tuning.vector_white ** 2 * np.eye(3)
+    if has_z:
+        sl = layout[zname]
+        H3[:, sl] = np.eye(3)
+        # quasi-stationary P_c of 003 eq. (44): a first (or stale, > 3 T_c) sighting restarts the
+        # process at this measurement's covariance; later ones set the driving noise (eq. (45)).
+        # A floor of (1e-6)^2 keeps P positive definite along the vector, where P_c is singular.
+        P_c_model = P_c + (1e-6) ** 2 * np.eye(3)
+        if zname not in last_seen or (t_m - last_seen[zname]) > 3 * tuning.correlation_time_s * NS:
+            P = P.copy()
+            P[sl, :] = 0.0
+            P[:, sl] = 0.0
+            P[sl, sl] = P_c_model
+            zeta_hat[zname][:] = 0.0
+        P_c_latest[zname] = P_c_model
+        last_seen[zname] = t_m
+    else:
+        R3 = R3 + P_c
+    group_vecs.setdefault(t_m, {})[target] = (R_bc @ e_c, u_e)
+    return [(target, cam, T.T @ H3, T.T @ R3 @ T, T.T @ (e_c - pred), None)], P

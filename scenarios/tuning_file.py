@@ -1,0 +1,22 @@
+"""Read a navigation-filter tuning TOML file (003 table 3 format) into :class:`nav.tuning.Tuning`."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from nav.tuning import Tuning, tuning_from_toml
+
+#: The default tuning: 003 table 3.
+DEFAULT_TUNING_FILE = Path(__file__).parent / "library" / "tuning" / "table3.toml"
+
+
+def load_tuning(path: str | Path | None = None) -> Tuning:
+    """Load a tuning file; ``None`` loads 003 table 3. Errors name the file."""
+    p = Path(path) if path is not None else DEFAULT_TUNING_FILE
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise ValueError(f"{p}: cannot read tuning file ({e.strerror})") from None
+    try:
+        return tuning_from_toml(text)
+    except ValueError as e:
+        raise ValueError(f"{p}: {e}") from None
