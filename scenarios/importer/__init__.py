@@ -1,0 +1,13 @@
+"""Import real flight data (IMU / GPS tables, camera footage) into a horizon-nav MCAP log, and export
+logs back to tables, image folders and videos.
+
+Modules (one job each):
+
+* :mod:`.mapping` -- the TOML mapping file: dataclasses and validation (docs/import.md);
+* :mod:`.units` -- unit names and SI factors;
+* :mod:`.tables` -- CSV / Parquet reading (pyarrow), time bases, units, axis mapping;
+* :mod:`.footage` -- video files and image folders with a time stamp per frame;
+* :mod:`.validate` -- the validation report (rates, gaps, saturation, unit plausibility);
+* :mod:`.build` -- assembles the MCAP log (``import_flight``);
+* :mod:`.export` -- a log back to CSV + image folders + videos + a mapping file (``export_log``).
+"""
