@@ -18,7 +18,8 @@ Problems in the file are reported with ``warnings.warn(..., LogWarning)`` and co
   the file and the last good time;
 * unknown schema (not ROS 2 or not decodable): warning naming the topic; the topic is skipped;
 * stamps out of order on a topic: sorted (stable) by time, warning with the first offending time;
-  duplicate stamps on a topic: the first message kept, the others dropped, warning with the first time;
+  duplicate stamps on a topic: the first message kept, the others dropped, warning with the first time
+  (except vectors and measurement records, where one stamp may carry several messages);
 * NaN in a float field: kept, warning naming the topic, the first time and the count;
 * header.stamp different from the MCAP log_time: warning (log_time is used).
 
@@ -432,7 +433,7 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
                 "decoded as the file's schema says")
     if short == IMAGE_TYPE:
         loc = np.concatenate([np.stack([np.full(len(p[2]), p[0]), p[2], p[3]], axis=1) for p in parts])
-        order = _validate_times(rd, topic, t)
+        order = _validate_times(rd, topic, t, short)
         if include_images:
             cam = lf.parse_camera_topic(topic)
             stream = ImageStream(topic, rd, t[order], loc[order])
@@ -461,7 +462,7 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
         if len(diff):
             rd.warn(f"{path}: topic {topic}: header.stamp differs from log_time in {len(diff)} message(s) "
                     f"(first at log_time {format_time(t[diff[0]])}); log_time used")
-    order = _validate_times(rd, topic, t)
+    order = _validate_times(rd, topic, t, short)
     if order is not None and not (len(order) == len(t) and np.all(order[1:] > order[:-1])):
         vals = _select(vals, order)
         t = t[order]
@@ -481,8 +482,14 @@ def _select(vals: dict, idx) -> dict:
     return out
 
 
-def _validate_times(rd, topic, t) -> np.ndarray:
-    """Indices that sort ``t`` and drop duplicates (warning about either)."""
+#: Schemas whose messages legitimately share a stamp: several vectors of one frame (Earth and Sun),
+#: several measurement records of one filter epoch.
+MULTI_PER_STAMP = frozenset({f"{lf.PKG}/DirectionVector", f"{lf.PKG}/MeasurementRecord"})
+
+
+def _validate_times(rd, topic, t, short: str = "") -> np.ndarray:
+    """Indices that sort ``t`` (stable) and drop duplicate stamps, warning about either. Schemas in
+    :data:`MULTI_PER_STAMP` keep every message of a stamp, in file order."""
     path = rd.path
     d = np.diff(t)
     order = np.arange(len(t))
@@ -493,7 +500,7 @@ def _validate_times(rd, topic, t) -> np.ndarray:
         order = np.argsort(t, kind="stable")
     ts = t[order]
     dup = np.flatnonzero(np.diff(ts) == 0) + 1
-    if len(dup):
+    if len(dup) and short not in MULTI_PER_STAMP:
         rd.warn(f"{path}: topic {topic}: {len(dup)} duplicate time stamp(s) (first at {format_time(ts[dup[0]])}); "
                 "kept the first message of each stamp")
         keep = np.ones(len(ts), bool)
@@ -559,13 +566,13 @@ def _shape_fields(short: str, vals: dict) -> dict:
         if isinstance(cov, np.ndarray) and cov.dtype == np.float64:
             n = int(round(np.sqrt(cov.shape[1])))
             if n * n == cov.shape[1]:
-                out["covariance"] = cov.reshape(-1, n, n)
+                out["covariance"] = cov.reshape(len(cov), n, n)  # len(): n may be 0
     if short == f"{lf.PKG}/MeasurementRecord":
         ic = out.get("innovation_covariance")
         if isinstance(ic, np.ndarray) and ic.dtype == np.float64:
             m = int(round(np.sqrt(ic.shape[1])))
             if m * m == ic.shape[1]:
-                out["innovation_covariance"] = ic.reshape(-1, m, m)
+                out["innovation_covariance"] = ic.reshape(len(ic), m, m)
         elif isinstance(ic, np.ndarray):
             out["innovation_covariance"] = np.array(
                 [x.reshape(int(round(np.sqrt(len(x)))), -1) if len(x) else x.reshape(0, 0) for x in ic] + [None],

@@ -1,7 +1,12 @@
 """Shared test settings: astropy works offline with its bundled Earth-orientation data."""
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="session")
@@ -15,3 +20,13 @@ def astropy_offline():
     warnings.filterwarnings("ignore", module="astropy")
     warnings.filterwarnings("ignore", message=".*dubious year.*")
     return iers
+
+
+@pytest.fixture(scope="session")
+def vlog(tmp_path_factory):
+    """A short simulated log with truth-derived vectors and no images: atek, T+0..T+140 (the
+    cameras run from T+60), written by the CLI as a user would."""
+    p = tmp_path_factory.mktemp("replay") / "v.mcap"
+    subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", "atek", "--no-images", "--vectors",
+                    "--duration", "140", "-o", str(p), "--quiet"], check=True, cwd=ROOT, capture_output=True)
+    return p

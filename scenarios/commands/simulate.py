@@ -32,15 +32,18 @@ def add_arguments(p) -> None:
     p.add_argument("--jpeg-quality", type=int, default=None, help="JPEG quality of rendered frames (default: renderer's)")
     p.add_argument("--truth-rate", type=float, default=None,
                    help="rate of /truth/state [Hz] (default: the IMU rate); must divide the truth rate")
+    p.add_argument("--vectors", action="store_true",
+                   help="also write /camera_<k>/vectors: truth plus the vision error model (scenarios/truth_vectors.py)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = None, progress=None,
-              images=None) -> Path:
+              images=None, vectors=None) -> Path:
     """Write a simulated flight as a horizon-nav MCAP log (atomic: temp file, then rename).
 
     ``images``: optional iterable of ``(camera k, t_ns, jpeg bytes)`` (e.g.
-    :func:`scenarios.render.render_flight_images`), consumed as a stream.
+    :func:`scenarios.render.render_flight_images`), consumed as a stream. ``vectors``: optional
+    :class:`scenarios.truth_vectors.TruthVectors` written to ``/camera_<k>/vectors``.
     """
     from scenarios.log_writer import LogWriter
 
@@ -67,6 +70,8 @@ def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = 
             w.write_camera_truth(c.k, c.t_ns, ct.nadir_c, ct.sun_c, ct.moon_c, ct.horizon_visible,
                                  list(ct.conic_type), ct.sun_in_view, ct.moon_in_view, ct.earth_fraction,
                                  np.broadcast_to(c.psi_c, (n, 3)))
+        if vectors is not None:
+            vectors.write(w)
         n_images = 0
         for k, t_ns, jpeg in images or ():
             w.write_image(k, np.array([t_ns], np.int64), [jpeg])
@@ -113,7 +118,12 @@ def run(args) -> int:
             from scenarios.render import RenderOptions, render_flight_images
             opts = RenderOptions() if args.jpeg_quality is None else RenderOptions(jpeg_quality=args.jpeg_quality)
             images = render_flight_images(flight, options=opts, progress=not args.quiet)
-        write_log(flight, out, args.truth_rate, progress, images=images)
+        vectors = None
+        if args.vectors:
+            from scenarios.truth_vectors import flight_truth_vectors
+            progress(0.86, "vectors")
+            vectors = flight_truth_vectors(flight)
+        write_log(flight, out, args.truth_rate, progress, images=images, vectors=vectors)
         progress(1.0, "done")
     finally:
         if bar is not None:
@@ -122,5 +132,6 @@ def run(args) -> int:
     s = summary(flight.truth)
     print(f"{out}: {sc.name}, seed {args.seed}, {flight.duration:.0f} s; apogee {s['apogee_m'] / 1e3:.1f} km at "
           f"T+{s['apogee_t_s']:.0f} s; {len(flight.imu.t)} IMU samples, {len(flight.gps.t)} GPS fixes, "
-          f"{sum(len(c.t_ns) for c in flight.cameras)} camera frames ({'with images' if args.images else 'truth only'})")
+          f"{sum(len(c.t_ns) for c in flight.cameras)} camera frames ({'with images' if args.images else 'truth only'})"
+          + (f", {len(vectors)} vectors (truth + vision error model)" if vectors is not None else ""))
     return 0

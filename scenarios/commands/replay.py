@@ -1,0 +1,68 @@
+"""``horizon-nav replay FLIGHT.mcap``: vision, filter and smoother over a flight log; writes the
+solution MCAP and a Rerun recording and prints a summary (docs/replay.md)."""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+
+from scenarios.errors import UserError
+
+NAME = "replay"
+HELP = "replay a flight log: vision front end, filter, smoother -> solution MCAP + Rerun recording + summary"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("log", help="flight log (.mcap)")
+    p.add_argument("-o", "--output", default=None, help="solution log (default FLIGHT.solution.mcap)")
+    p.add_argument("--tuning", default=None, help="filter tuning TOML (default: 003 table 3)")
+    p.add_argument("--from", dest="t_from", default=None, help="start: T+<s> or UTC ISO (default: log start)")
+    p.add_argument("--to", dest="t_to", default=None, help="end: T+<s> or UTC ISO (default: log end)")
+    p.add_argument("--cameras", default=None, help="cameras to use, e.g. 1,2 (default: all)")
+    p.add_argument("--targets", default="earth,sun", help="targets to use: earth,sun[,moon] (default earth,sun)")
+    p.add_argument("--init", choices=("truth", "given", "triad"), default=None,
+                   help="initialisation (default: triad when vectors exist, else truth if the log has it)")
+    p.add_argument("--init-file", default=None, help="--init given: TOML with time, q_eb [, position_e, velocity_e]")
+    p.add_argument("--no-smoother", dest="smoother", action="store_false", default=True, help="skip the RTS smoother")
+    p.add_argument("--vision", choices=("auto", "images", "vectors"), default="auto",
+                   help="auto: images if the log has them, else its vectors")
+    p.add_argument("--vision-config", default=None, help="vision config TOML (default: the library default)")
+    p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
+    p.add_argument("--rrd", default=None, help="Rerun recording (default: next to the solution, FLIGHT.rrd)")
+    p.add_argument("--no-rerun", action="store_true", help="do not write a Rerun recording")
+    p.add_argument("--spawn", action="store_true", help="open the Rerun viewer")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def options_from_args(args):
+    from scenarios.replay.pipeline import ReplayOptions
+    cams = None
+    if args.cameras:
+        try:
+            cams = [int(c) for c in args.cameras.split(",") if c.strip()]
+        except ValueError:
+            raise UserError(f"--cameras {args.cameras}: expected camera numbers, e.g. 1,2") from None
+    targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
+    return ReplayOptions(tuning=args.tuning, t_from=args.t_from, t_to=args.t_to, cameras=cams, targets=targets,
+                         init=args.init, init_file=args.init_file, smoother=args.smoother, vision=args.vision,
+                         vision_config=args.vision_config, workers=args.workers, output=args.output,
+                         rrd="" if args.no_rerun else args.rrd, spawn=args.spawn,
+                         progress=not args.quiet and not args.json)
+
+
+def run(args) -> int:
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.summary import format_table, summarize
+    import logging
+    logging.getLogger("nav.navigator").setLevel(logging.ERROR)  # rejections are counted in the summary
+    opt = options_from_args(args)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        rr = replay(args.log, opt)
+    except KeyboardInterrupt:
+        print("replay interrupted: partial solution log written (horizon-nav.status complete = false)", file=sys.stderr)
+        return 130
+    s = summarize(rr)
+    print(json.dumps(s, indent=1) if args.json else format_table(s))
+    return 0

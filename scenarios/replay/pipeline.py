@@ -1,0 +1,411 @@
+"""The replay: a flight log through the vision front end, the filter and the smoother.
+
+Stages (timed; ``ReplayResult.timings``):
+
+1. **read**: the log (:func:`scenarios.replay.inputs.load_inputs`), the time window, the cameras.
+2. **vision** (``--vision images``): every camera frame in the window is decoded and processed by
+   :func:`vision.frontend.process_frame` in worker processes (:mod:`.vision_worker`), with the
+   GPS position as prior (height for 003 eq. (5), latitude for the substitute sphere). With
+   ``--vision vectors`` the log's ``/camera_<k>/vectors`` are used as they are.
+3. **init**: ``truth`` (the log's /truth/state), ``given`` (a TOML file) or ``triad`` (GPS
+   position/velocity and TRIAD at the first epoch with a horizon and a Sun vector, back-propagated
+   to the start with the INS, 003 §7.4). For image vectors the substitute-sphere nadir is turned
+   into the geocentric nadir with the approximate attitude of a first TRIAD + free-inertial pass
+   (:func:`.vision_worker.geocentric_correction`), and TRIAD is then repeated on the corrected
+   vectors.
+4. **filter**: :func:`nav.navigator.run` (one call over the window; it cannot be resumed).
+5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
+6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
+7. **rerun**: the recording (:mod:`.rerun_view`).
+
+Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
+(``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that
+moment: interrupted during vision, the vectors of the frames processed so far (substitute-sphere
+nadir, not yet corrected; metadata ``vectors_model = sphere``); during the filter or smoother,
+all vectors (as given to the filter) but no solution, since the filter runs in one call; during
+writing or Rerun, the complete solution.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nav import earth, ins
+from nav.navigator import InitialState, VectorData
+from nav.rotation import quat_to_matrix
+from scenarios.errors import UserError
+from scenarios.replay import inputs as I
+
+log = logging.getLogger(__name__)
+NS = 1_000_000_000
+NAV_TARGET = {"earth": "hor", "sun": "sun", "moon": "moon"}
+
+
+@dataclass
+class ReplayOptions:
+    tuning: str | None = None
+    t_from: str | None = None
+    t_to: str | None = None
+    cameras: list | None = None
+    targets: tuple = ("earth", "sun")
+    init: str | None = None            #: "truth", "given", "triad" or None (auto)
+    init_file: str | None = None
+    smoother: bool = True
+    vision: str = "auto"               #: "auto", "images", "vectors"
+    vision_config: str | None = None
+    workers: int = 0
+    output: str | None = None          #: solution MCAP (default FLIGHT.solution.mcap)
+    rrd: str | None = None             #: Rerun file (default next to the solution); "" = none
+    spawn: bool = False
+    progress: bool = True
+
+
+@dataclass
+class ReplayResult:
+    inputs: object
+    nav: object
+    smooth: object
+    vectors: VectorData | None
+    cam_numbers: list
+    frames: list
+    solution_path: Path
+    rrd_path: Path | None
+    timings: dict
+    init_method: str
+    vision_mode: str
+    messages: list = field(default_factory=list)
+    triad_init: object = None
+
+
+def _bar(total, desc, enabled):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="frame", leave=False)
+
+
+def _gps_at(inp, t_ns):
+    g = inp.gps
+    t = np.asarray(t_ns, float)
+    return np.stack([np.interp(t, g.t_ns.astype(float), g.x_e[:, i]) for i in range(3)], -1)
+
+
+def _vectors_from_log(inp, cam_numbers, targets, a, b) -> VectorData | None:
+    rows = []
+    for i, k in enumerate(cam_numbers):
+        v = inp.cameras[k].vectors
+        if v is None:
+            continue
+        m = (v["t_ns"] >= a) & (v["t_ns"] <= b) & np.isin(v["target"], list(targets))
+        for j in np.flatnonzero(m):
+            rows.append((int(v["t_ns"][j]), i, NAV_TARGET[str(v["target"][j])], v["vector"][j], v["covariance"][j]))
+    return _vd(rows)
+
+
+def _vd(rows) -> VectorData | None:
+    if not rows:
+        return None
+    rows.sort(key=lambda r: (r[0], r[1], r[2]))
+    c = list(zip(*rows))
+    return VectorData(np.array(c[0], np.int64), np.array(c[1], int), np.array(c[2], dtype=str),
+                      np.array(c[3], float).reshape(-1, 3), np.array(c[4], float).reshape(-1, 3, 3))
+
+
+def _given_init(path, inp, imu) -> InitialState:
+    p = Path(path)
+    try:
+        d = tomllib.loads(p.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise UserError(f"--init-file {p}: cannot read ({e})") from None
+    try:
+        t = I.parse_time(str(d["time"]), inp.liftoff_ns, f"--init-file {p}: time") if "time" in d else int(imu.t_ns[0])
+        q = np.asarray(d["q_eb"], float)
+    except KeyError as e:
+        raise UserError(f"--init-file {p}: missing key {e} (expected time, q_eb [x, y, z, w], and position_e / "
+                        "velocity_e unless the log has GPS)") from None
+    i = int(np.searchsorted(imu.t_ns, t))
+    if i >= imu.t_ns.size - 1:
+        raise UserError(f"--init-file {p}: time is after the IMU record")
+    t0 = int(imu.t_ns[i])
+    if "position_e" in d:
+        x, v = np.asarray(d["position_e"], float), np.asarray(d.get("velocity_e", [0, 0, 0]), float)
+    elif inp.gps is not None:
+        from nav.initialise import gps_interpolator
+        x, v = gps_interpolator(inp.gps)(t0)
+    else:
+        raise UserError(f"--init-file {p}: no position_e and the log has no GPS")
+    if q.shape != (4,) or not np.isclose(np.linalg.norm(q), 1.0, atol=1e-6):
+        raise UserError(f"--init-file {p}: q_eb must be a unit quaternion [x, y, z, w]")
+    return InitialState(t0, x, v, q)
+
+
+def _truth_init(inp, imu) -> InitialState:
+    tr = inp.truth
+    t0 = int(imu.t_ns[0])
+    j = int(np.searchsorted(tr.t_ns, t0))
+    if j >= tr.t_ns.size or tr.t_ns[j] != t0:
+        # start at the first IMU sample that has a truth sample
+        common = np.intersect1d(imu.t_ns, tr.t_ns)
+        if not common.size:
+            raise UserError("--init truth: no /truth/state sample at an IMU sample time")
+        t0 = int(common[0])
+        j = int(np.searchsorted(tr.t_ns, t0))
+    return InitialState(t0, tr.x_e[j], tr.v_e[j], tr.q_eb[j])
+
+
+def replay(path, opt: ReplayOptions) -> ReplayResult:
+    """Run the replay of the log at ``path`` (module docstring). Raises UserError for bad input."""
+    from nav.navigator import run as nav_run
+    from scenarios.log_writer import LogWriter
+    from scenarios.tuning_file import load_tuning
+    from scenarios.replay import solution_log as SL
+
+    timings = {}
+    msgs = []
+    t = time.perf_counter()
+    bad_t = set(opt.targets) - set(I.TARGETS)
+    if bad_t:
+        raise UserError(f"--targets {','.join(sorted(bad_t))}: expected earth, sun or moon")
+    if opt.vision not in ("auto", "images", "vectors"):
+        raise UserError(f"--vision {opt.vision}: expected auto, images or vectors")
+    if opt.init not in (None, "truth", "given", "triad"):
+        raise UserError(f"--init {opt.init}: expected truth, given or triad")
+    inp = I.load_inputs(path, t_from=opt.t_from, t_to=opt.t_to, cameras=opt.cameras,
+                        need_gps=opt.init != "given" and opt.init != "truth")
+    try:
+        tuning = load_tuning(opt.tuning)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    a, b = inp.t_from, inp.t_to
+    imu = I.window_imu(inp.imu, a, b)
+    gps = I.window_gps(inp.gps, a, b)
+    if imu.t_ns.size < 2:
+        raise UserError(f"{inp.path}: fewer than 2 IMU samples in the window")
+    # vision mode
+    mode = opt.vision
+    if mode == "auto":
+        mode = "images" if inp.has_images else ("vectors" if inp.has_vectors else "none")
+        if mode == "none" and inp.cameras:
+            msgs.append("the log has cameras but neither images nor vectors: GPS/INS only")
+        elif mode == "none":
+            msgs.append("the log has no cameras: GPS/INS only")
+    if mode == "images" and not inp.has_images:
+        raise UserError(f"--vision images: {inp.path} has no camera images"
+                        + ("; it has vectors: use --vision vectors" if inp.has_vectors else ""))
+    if mode == "vectors" and not inp.has_vectors:
+        raise UserError(f"--vision vectors: {inp.path} has no /camera_<k>/vectors"
+                        + ("; it has images: use --vision images" if inp.has_images else ""))
+    cam_numbers = []
+    for k, c in inp.cameras.items():
+        usable = (mode == "images" and c.images is not None) or (mode == "vectors" and c.vectors is not None)
+        if not usable:
+            continue
+        if c.R_bc is None:
+            raise UserError(f"{inp.path}: camera {k} has no mount in /tf_static (body -> camera_{k}); the filter "
+                            f"needs it. Replay without it: --cameras {','.join(str(x) for x in inp.cameras if x != k) or 'NONE'}")
+        if mode == "images" and c.camera is None:
+            raise UserError(f"{inp.path}: camera {k} has images but no /camera_{k}/camera_info, so its images cannot "
+                            "be turned into vectors. What can still be done: "
+                            + ("--vision vectors (the log has vectors); " if inp.has_vectors else "")
+                            + f"--cameras to leave camera {k} out, or a GPS/INS-only replay with --vision vectors "
+                              "on a log without cameras")
+        cam_numbers.append(k)
+    if opt.t_from is None and cam_numbers:
+        # default start: the first camera frame / vector (003 §7.4 starts the navigation where the
+        # cameras start, T+60; before it the spinning ascent saturates the gyros)
+        firsts = [int((inp.cameras[k].images.t_ns if mode == "images" else inp.cameras[k].vectors["t_ns"])[0])
+                  for k in cam_numbers]
+        if min(firsts) > a:
+            a = min(firsts)
+            msgs.append(f"start: the first camera frame, T+{inp.mission_time(a):.1f} s (--from to change)")
+    if opt.t_from is None and gps is not None and len(gps.t_ns) and gps.t_ns[0] > a:
+        a = int(gps.t_ns[0])
+    imu = I.window_imu(inp.imu, a, b)
+    gps = I.window_gps(inp.gps, a, b)
+    timings["read"] = time.perf_counter() - t
+
+    out = Path(opt.output) if opt.output else inp.path.with_name(inp.path.name.removesuffix(".mcap") + ".solution.mcap")
+    meta = {"scenario": inp.info.get("scenario", ""), "seed": inp.info.get("seed", ""),
+            "liftoff_utc_ns": inp.info.get("liftoff_utc_ns", ""), "kind": "solution", "source_log": str(inp.path),
+            "vision": mode, "window_ns": f"{a},{b}"}
+    w = LogWriter(out, meta)
+    stage = "vision"
+    frames = []
+    vectors = None
+    res = sm = None
+    tri_init = None
+    init_method = opt.init
+    try:
+        # ------------------------------------------------------------------ vision
+        t = time.perf_counter()
+        if mode == "images":
+            frames, vectors = _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out=frames)
+        elif mode == "vectors":
+            vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
+        timings["vision"] = time.perf_counter() - t
+        # ------------------------------------------------------------------ init
+        stage = "init"
+        t = time.perf_counter()
+        R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
+        has_pair = vectors is not None and {"hor", "sun"} <= set(np.unique(vectors.target))
+        if init_method is None:
+            if has_pair and gps is not None:
+                init_method = "triad"
+            else:
+                init_method = "truth" if inp.truth is not None else "gps"
+                msgs.append("initialisation: no epoch with both a horizon and a Sun vector for TRIAD (003 §7.4); "
+                            + ("using the log's truth (--init truth)" if init_method == "truth"
+                               else "using the first GPS fix and a level attitude with 180 deg sigma is not "
+                                    "possible: give --init given --init-file STATE.toml"))
+                if init_method == "gps":
+                    raise UserError("--init: no TRIAD epoch and no truth in the log; give --init given --init-file STATE.toml "
+                                    "(time, q_eb and optionally position_e, velocity_e)")
+        if init_method == "truth":
+            if inp.truth is None:
+                raise UserError(f"--init truth: {inp.path} has no /truth/state; use --init triad or given")
+            init = _truth_init(inp, imu)
+        elif init_method == "given":
+            if not opt.init_file:
+                raise UserError("--init given: needs --init-file STATE.toml (time, q_eb, position_e, velocity_e)")
+            init = _given_init(opt.init_file, inp, imu)
+        else:
+            if not has_pair:
+                raise UserError("--init triad: no epoch with both a horizon and a Sun vector"
+                                + (" (use --init truth: the log has truth)" if inp.truth is not None else
+                                   " (use --init given --init-file STATE.toml)"))
+            if gps is None:
+                raise UserError("--init triad: needs GPS position and velocity")
+            init, tri_init = _triad(imu, gps, vectors, R_bc)
+        if mode == "images" and vectors is not None:
+            vectors = _correct_earth(vectors, imu, init, inp, R_bc)
+            if init_method == "triad":
+                init, tri_init = _triad(imu, gps, vectors, R_bc)
+        timings["init"] = time.perf_counter() - t
+        stage = "filter"
+        t = time.perf_counter()
+        try:
+            res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc, store_for_smoother=opt.smoother)
+        except ValueError as e:
+            raise UserError(f"filter: {e}") from None
+        timings["filter"] = time.perf_counter() - t
+        if opt.smoother:
+            stage = "smoother"
+            t = time.perf_counter()
+            from nav.smoother import rts_smooth
+            sm = rts_smooth(res)
+            res.store = None
+            timings["smoother"] = time.perf_counter() - t
+        stage = "write"
+        t = time.perf_counter()
+        SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
+        w.close()
+        timings["write"] = time.perf_counter() - t
+    except KeyboardInterrupt:
+        if stage == "vision":
+            vectors = _vd([(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
+                           for f in frames for r in f.records if r.camera in cam_numbers])
+            w.metadata["vectors_model"] = "sphere"
+        if stage in ("vision", "init", "filter", "smoother"):
+            SL.write_vectors(w, vectors, cam_numbers)
+        w.close(complete=False, reason=f"KeyboardInterrupt during {stage}")
+        raise
+    except BaseException:
+        w.discard()
+        raise
+    rrd = None
+    if opt.rrd != "" or opt.spawn:
+        t = time.perf_counter()
+        from scenarios.replay.rerun_view import record
+        rrd = None if opt.spawn and not opt.rrd else Path(opt.rrd or out.with_name(
+            out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
+        record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn)
+        timings["rerun"] = time.perf_counter() - t
+    return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init)
+
+
+def _triad(imu, gps, vectors, R_bc):
+    from nav.initialise import triad_initialise
+    try:
+        ti = triad_initialise(imu, gps, vectors, R_bc, int(imu.t_ns[0]))
+    except ValueError as e:
+        raise UserError(f"--init triad: {e}") from None
+    return ti.initial, ti
+
+
+def _correct_earth(vectors, imu, init, inp, R_bc):
+    """Substitute-sphere -> geocentric nadir with the free-inertial attitude from ``init``."""
+    from scenarios.replay.vision_worker import geocentric_correction
+    m = vectors.target == "hor"
+    if not m.any():
+        return vectors
+    i0 = int(np.searchsorted(imu.t_ns, init.t_ns))
+    ts = (imu.t_ns[i0:] - imu.t_ns[i0]) / NS
+    _, _, Q = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, imu.f_b[i0:], imu.w_b[i0:], sample=imu.sample)
+    t = vectors.t_ns[m]
+    j = np.clip(np.searchsorted(imu.t_ns[i0:], t), 0, len(ts) - 1)
+    R_eb = quat_to_matrix(Q[j])
+    R_bc_a = np.array(R_bc)[vectors.camera[m]]
+    R_ce = np.swapaxes(R_eb @ R_bc_a, -1, -2)
+    e = vectors.e_c.copy()
+    e[m] = geocentric_correction(vectors.e_c[m], _gps_at(inp, t), R_ce)
+    return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
+
+
+def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out):
+    from scenarios.replay.vision_worker import FrameJob, run_vision
+    from scenarios.vision_config import load_vision_config
+    jobs = []
+    cams = {}
+    configs = {}
+    for k in cam_numbers:
+        c = inp.cameras[k]
+        cams[k] = c.camera
+        configs[k] = load_vision_config(opt.vision_config, camera=c.camera)
+        st = c.images
+        sel = np.flatnonzero((st.t_ns >= a) & (st.t_ns <= b))
+        for i in sel:
+            jobs.append((int(st.t_ns[i]), k, int(i)))
+    jobs.sort()
+    if not jobs:
+        return [], None
+    t_all = np.array([j[0] for j in jobs], np.int64)
+    if inp.gps is not None:
+        x = _gps_at(inp, t_all)
+    elif inp.truth is not None:
+        x = np.stack([np.interp(t_all.astype(float), inp.truth.t_ns.astype(float), inp.truth.x_e[:, i]) for i in range(3)], -1)
+    else:
+        raise UserError("--vision images: the Earth fit needs the height (003 eq. (5)); the log has neither GPS nor truth")
+    lat, _, h = earth.ecef_to_geodetic(x)
+    # one config per camera only differs through the focal length; the worker takes one config
+    cfg = configs[cam_numbers[0]]
+    cfg = _targets_only(cfg, opt.targets)
+    fj = [FrameJob(k, i, t, inp.cameras[k].images[i], float(h[n]), float(lat[n])) for n, (t, k, i) in enumerate(jobs)]
+    bar = _bar(len(fj), "vision", opt.progress)
+    try:
+        out = run_vision(fj, cams, cfg, workers=opt.workers, progress=(bar.update if bar else None),
+                         on_result=frames_out.extend)
+    finally:
+        if bar is not None:
+            bar.close()
+    rows = [(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
+            for f in out for r in f.records if r.target in opt.targets]
+    return frames_out, _vd(rows)
+
+
+def _targets_only(cfg, targets):
+    import dataclasses
+    ch = {}
+    for name in ("earth", "sun", "moon"):
+        tc = getattr(cfg, name)
+        if tc.enabled and name not in targets:
+            ch[name] = dataclasses.replace(tc, enabled=False)
+    return dataclasses.replace(cfg, **ch) if ch else cfg
+
+
+__all__ = ["ReplayOptions", "ReplayResult", "replay", "math"]

@@ -1,0 +1,155 @@
+"""Replay summary: measurements used / rejected per source with reasons, NIS statistics, final
+camera misalignments with 3 sigma, and errors against truth when the log has it."""
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+from scipy.stats import chi2
+
+from nav.rotation import matrix_to_rotvec, quat_to_matrix
+from scenarios.replay.solution_log import source_name
+
+NS = 1_000_000_000
+DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
+
+
+def attitude_error(q_est, q_true) -> np.ndarray:
+    """psi (in e) from estimated to true attitude (CONVENTIONS), per sample [rad]."""
+    return matrix_to_rotvec(quat_to_matrix(q_true) @ np.swapaxes(quat_to_matrix(q_est), -1, -2))
+
+
+def summarize(rr) -> dict:
+    """Figures of a :class:`scenarios.replay.pipeline.ReplayResult` as a JSON-ready dict."""
+    res, inp, cams = rr.nav, rr.inputs, rr.cam_numbers
+    out: dict = {"log": str(inp.path), "solution": str(rr.solution_path), "rrd": str(rr.rrd_path) if rr.rrd_path else None,
+                 "vision": rr.vision_mode, "init": rr.init_method,
+                 "window_tplus_s": [float(inp.mission_time(res.t_ns[0])), float(inp.mission_time(res.t_ns[-1]))],
+                 "timings_s": {k: round(v, 3) for k, v in rr.timings.items()}, "notes": list(rr.messages)}
+    meas: dict = {}
+    for i in res.innovations:
+        src = source_name(i.kind, i.camera, cams)
+        d = meas.setdefault(src, {"used": 0, "rejected": Counter()})
+        if i.accepted:
+            d["used"] += 1
+        else:
+            d["rejected"][i.reason or "?"] += 1
+    out["measurements"] = {k: {"used": v["used"], "rejected": dict(v["rejected"])} for k, v in sorted(meas.items())}
+    other = {k: v for k, v in res.rejected.items() if not any(k.startswith(p) for p in ("gps_pos_", "gps_vel_", "hor_", "sun_", "moon_"))}
+    out["other_rejections"] = other
+    nis = {}
+    for kind, dof in DOF.items():
+        v = res.nis(kind)
+        if v.size:
+            lo, hi = chi2.ppf([0.025, 0.975], dof)
+            nis[kind] = {"n": int(v.size), "mean": float(v.mean()), "dof": dof,
+                         "inside95": float(np.mean((v > lo) & (v < hi)))}
+    out["nis"] = nis
+    mis = {}
+    if len(res.misalignment_t_ns):
+        for c, k in enumerate(cams):
+            mis[f"camera_{k}"] = {"psi_c_deg": np.degrees(res.misalignment[-1, c]).round(4).tolist(),
+                                  "3sigma_deg": np.degrees(3 * res.misalignment_sigma[-1, c]).round(4).tolist()}
+    out["misalignment_final"] = mis
+    sig = np.sqrt(res.P_diag[-1])
+    lay = res.layout
+    out["final_3sigma"] = {"att_deg": float(np.degrees(3 * sig[lay["psi"]].max())),
+                           "pos_m": float(3 * sig[lay["dx"]].max()), "vel_mps": float(3 * sig[lay["dv"]].max())}
+    if inp.truth is not None:
+        out["truth"] = truth_errors(rr)
+    return out
+
+
+def truth_errors(rr) -> dict:
+    """Errors against /truth/state at the solution epochs that have a truth sample (the IMU rate
+    truth of simulated logs: every epoch). Attitude RMS over the aided phase (from the first
+    vector measurement; the whole run when there are none)."""
+    res, tr = rr.nav, rr.inputs.truth
+    out = {}
+    vt = [i.t_ns for i in res.innovations if i.kind in ("hor", "sun", "moon")]
+    t_aid = min(vt) if vt else int(res.t_ns[0])
+    for name, t, x, v, q, P in (("forward", res.t_ns, res.x_e, res.v_e, res.q_eb, None),
+                                ("smoothed", None if rr.smooth is None else rr.smooth.t_ns,
+                                 None if rr.smooth is None else rr.smooth.x_e,
+                                 None if rr.smooth is None else rr.smooth.v_e,
+                                 None if rr.smooth is None else rr.smooth.q_eb, None),
+                                ("unaided", res.t_ns if len(res.unaided_q_eb) else None, res.unaided_x_e,
+                                 res.unaided_v_e, res.unaided_q_eb, None)):
+        if t is None:
+            continue
+        j = np.searchsorted(tr.t_ns, t)
+        ok = (j < tr.t_ns.size)
+        ok[ok] = tr.t_ns[j[ok]] == t[ok]
+        if not ok.any():
+            continue
+        jj = j[ok]
+        psi = attitude_error(q[ok], tr.q_eb[jj])
+        dpos = np.linalg.norm(x[ok] - tr.x_e[jj], axis=1)
+        dvel = np.linalg.norm(v[ok] - tr.v_e[jj], axis=1)
+        aided = t[ok] >= t_aid
+        a = np.degrees(np.linalg.norm(psi, axis=1))
+        out[name] = {"att_rms_deg": float(np.sqrt(np.mean(a[aided] ** 2))) if aided.any() else float("nan"),
+                     "att_max_deg": float(a[aided].max()) if aided.any() else float("nan"),
+                     "att_final_deg": float(a[-1]), "pos_rms_m": float(np.sqrt(np.mean(dpos ** 2))),
+                     "pos_max_m": float(dpos.max()), "vel_rms_mps": float(np.sqrt(np.mean(dvel ** 2))),
+                     "vel_max_mps": float(dvel.max())}
+    if "forward" in out:
+        # final error inside the final 3 sigma (per axis)?
+        j = int(np.searchsorted(tr.t_ns, res.cov_t_ns[-1]))
+        if j < tr.t_ns.size and tr.t_ns[j] == res.cov_t_ns[-1]:
+            psi = attitude_error(res.q_eb[res.cov_idx[-1]], tr.q_eb[j])
+            s3 = 3 * np.sqrt(res.P_diag[-1, res.layout["psi"]])
+            out["forward"]["att_final_inside_3sigma"] = bool(np.all(np.abs(psi) < s3))
+    out["aided_from_tplus_s"] = float(rr.inputs.mission_time(t_aid))
+    return out
+
+
+def format_table(s: dict) -> str:
+    """The summary as printed by ``horizon-nav replay``."""
+    L = []
+    w0, w1 = s["window_tplus_s"]
+    L.append(f"replay of {s['log']}: T+{w0:.1f} .. T+{w1:.1f} s, vision from {s['vision']}, init {s['init']}")
+    for n in s["notes"]:
+        L.append(f"  note: {n}")
+    L.append("")
+    L.append(f"{'measurement':<18} {'used':>6} {'rejected':>9}  reasons")
+    for src, d in s["measurements"].items():
+        rej = sum(d["rejected"].values())
+        why = ", ".join(f"{k}: {v}" for k, v in d["rejected"].items())
+        L.append(f"{src:<18} {d['used']:>6} {rej:>9}  {why}")
+    if s["other_rejections"]:
+        L.append("other: " + ", ".join(f"{k}: {v}" for k, v in s["other_rejections"].items()))
+    L.append("")
+    L.append(f"{'NIS':<10} {'n':>6} {'mean':>8} {'dof':>4} {'in 95% band':>12}")
+    for k, d in s["nis"].items():
+        L.append(f"{k:<10} {d['n']:>6} {d['mean']:>8.2f} {d['dof']:>4} {100 * d['inside95']:>11.1f}%")
+    if s["misalignment_final"]:
+        L.append("")
+        L.append("camera misalignment (final, b frame) [deg]      3 sigma [deg]")
+        for k, d in s["misalignment_final"].items():
+            L.append(f"{k:<10} [{', '.join(f'{x:+.3f}' for x in d['psi_c_deg'])}]   "
+                     f"[{', '.join(f'{x:.3f}' for x in d['3sigma_deg'])}]")
+    f3 = s["final_3sigma"]
+    L.append("")
+    L.append(f"final 3 sigma: attitude {f3['att_deg']:.3f} deg, position {f3['pos_m']:.2f} m, velocity {f3['vel_mps']:.3f} m/s")
+    if "truth" in s:
+        t = s["truth"]
+        L.append("")
+        L.append(f"errors against truth (attitude over the aided phase from T+{t['aided_from_tplus_s']:.0f} s):")
+        L.append(f"{'solution':<10} {'att RMS':>9} {'att max':>9} {'att end':>9} {'pos RMS':>9} {'pos max':>9} {'vel RMS':>9}")
+        L.append(f"{'':<10} {'[deg]':>9} {'[deg]':>9} {'[deg]':>9} {'[m]':>9} {'[m]':>9} {'[m/s]':>9}")
+        for name in ("forward", "smoothed", "unaided"):
+            if name in t:
+                d = t[name]
+                L.append(f"{name:<10} {d['att_rms_deg']:>9.4f} {d['att_max_deg']:>9.4f} {d['att_final_deg']:>9.4f} "
+                         f"{d['pos_rms_m']:>9.2f} {d['pos_max_m']:>9.2f} {d['vel_rms_mps']:>9.3f}")
+        if "att_final_inside_3sigma" in t.get("forward", {}):
+            L.append(f"final attitude error inside its 3 sigma (per axis): {t['forward']['att_final_inside_3sigma']}")
+    L.append("")
+    L.append("time per stage [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()))
+    L.append(f"solution: {s['solution']}" + (f"   recording: {s['rrd']}  (open with: rerun {s['rrd']})" if s["rrd"] else ""))
+    return "\n".join(L)
+
+
+__all__ = ["summarize", "format_table", "truth_errors", "attitude_error", "math"]
