@@ -1,4 +1,5 @@
-"""Numba kernels that scan an MCAP record stream and gather message payloads.
+"""Numba kernels that scan an MCAP record stream, gather message payloads, and gather records in
+time order for the writer.
 
 An MCAP record is ``opcode u8, length u64 (little endian), body[length]`` (MCAP spec, "Records").
 A Message record body (opcode 0x05) is ``channel_id u16, sequence u32, log_time u64,
@@ -67,4 +68,24 @@ def gather_rows(buf, offsets, lengths, width):
         o = offsets[i]
         for j in range(min(lengths[i], width)):
             out[i, j] = buf[o + j]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def gather_bytes(srcs, source, offsets, lengths):
+    """Concatenate ``srcs[source[i]][offsets[i]:offsets[i]+lengths[i]]`` for i = 0..n-1 into one
+    uint8 array: the writer's merge of Message records from several batches (``srcs``, a typed
+    list of 1-D uint8 arrays) into time order."""
+    n = offsets.shape[0]
+    total = 0
+    for i in range(n):
+        total += lengths[i]
+    out = np.empty(total, np.uint8)
+    p = 0
+    for i in range(n):
+        src = srcs[source[i]]
+        o = offsets[i]
+        ln = lengths[i]
+        out[p:p + ln] = src[o:o + ln]
+        p += ln
     return out

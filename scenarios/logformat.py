@@ -345,9 +345,25 @@ def flatten(short: str, msgdefs: dict[str, list[Field]]) -> list[Leaf]:
     return leaves
 
 
+def strided_view(rows: np.ndarray, col: int, dtype, k: int) -> np.ndarray:
+    """``(m, k)`` view of dtype ``dtype`` on the bytes ``col:col + k*itemsize`` of every row of the
+    C-contiguous uint8 matrix ``rows`` (unaligned access is fine for numpy)."""
+    dt = np.dtype(dtype)
+    m, width = rows.shape
+    return np.ndarray((m, k), dt, buffer=rows, offset=col, strides=(width, dt.itemsize))
+
+
 def _align(pos, a):
     """Align a CDR position (counted from the start of the buffer incl. the 4-byte header)."""
     return (pos - 4 + a - 1) // a * a + 4
+
+
+@dataclass(frozen=True)
+class _Const:
+    """A field value shared by every message of a batch: ``row`` its elements (1-D, wire dtype),
+    ``count`` the element count (for sequences)."""
+    row: np.ndarray
+    count: int
 
 
 class Layout:
@@ -371,10 +387,38 @@ class Layout:
 
     # ---------------- encode ----------------
     def encode(self, values: dict, n: int) -> list[bytes]:
+        """Encode ``n`` messages -> list of ``n`` payloads (bytes, with encapsulation header)."""
+        n = int(n)
+        out: list[bytes] = [b""] * n
+        for idx, rows in self.encode_groups(values, n):
+            L = rows.shape[1]
+            blob = rows.tobytes()
+            if idx is None:
+                out = [blob[i * L:(i + 1) * L] for i in range(n)]
+            else:
+                for j, i in enumerate(idx.tolist()):
+                    out[i] = blob[j * L:(j + 1) * L]
+        return out
+
+    def encode_groups(self, values: dict, n: int, prefix: int = 0,
+                      head=None) -> list[tuple[np.ndarray | None, np.ndarray]]:
+        """Encode ``n`` messages as byte matrices, one per group of messages that share a layout.
+
+        Returns a list of ``(idx, rows)``: ``idx`` the message indices of the group in ascending
+        order (None: all ``n`` messages, the usual case of one layout), ``rows`` a C-contiguous
+        ``(len(idx), prefix + L)`` uint8 matrix whose columns ``prefix:`` are the CDR payloads
+        (``L`` bytes each, encapsulation header included) and whose first ``prefix`` columns are
+        ``head(L)`` (``prefix`` bytes, e.g. an MCAP Message record header; zeros when ``head`` is
+        None) for the caller to complete.
+
+        Values that are the same in every message (scalars, one row, ``np.broadcast_to`` views,
+        a single str) are written once into a template row that is copied to all rows; only the
+        varying fields are written column by column.
+        """
         n = int(n)
         if n == 0:
             return []
-        prepared = []  # (leaf, data) with data normalised
+        prepared = []  # (leaf, data) with data normalised; _Const for values shared by all messages
         var_cols = []  # per-message variable sizes (string byte lengths, sequence counts)
         for lf in self.leaves:
             if lf.path not in values:
@@ -384,8 +428,8 @@ class Layout:
                 if lf.array is None:
                     enc = _encode_strings(v, n, f"{self.name}.{lf.path}")
                     prepared.append((lf, enc))
-                    var_cols.append(np.array([len(b) for b in enc]) if isinstance(enc, list)
-                                    else np.full(n, enc[1], dtype=np.int64))
+                    if isinstance(enc, list):
+                        var_cols.append(np.array([len(b) for b in enc]))
                 else:  # string sequence: list of N lists
                     if isinstance(v, (list, tuple)) and len(v) == n and all(isinstance(x, (list, tuple)) for x in v):
                         lists = [[s.encode() for s in x] for x in v]
@@ -399,9 +443,10 @@ class Layout:
             dt = np.dtype(PRIMITIVES[lf.type])
             if lf.array == -1:
                 if isinstance(v, np.ndarray) and v.ndim == 2 and v.shape[0] == n:
-                    arr = np.ascontiguousarray(v, dtype=dt)
-                    prepared.append((lf, arr))
-                    var_cols.append(np.full(n, arr.shape[1], dtype=np.int64))
+                    if v.strides[0] == 0:  # broadcast view: one sequence for all messages
+                        prepared.append((lf, _Const(np.ascontiguousarray(v[0], dtype=dt), v.shape[1])))
+                    else:
+                        prepared.append((lf, np.asarray(v, dtype=dt)))
                 else:
                     if len(v) != n:
                         raise ValueError(f"{self.name}.{lf.path}: expected {n} sequences, got {len(v)}")
@@ -411,37 +456,37 @@ class Layout:
             else:
                 k = 1 if lf.array is None else lf.array
                 arr = np.asarray(v)
+                const = None
                 if arr.ndim == 0:
-                    arr = np.broadcast_to(arr, (n, k))
-                elif arr.shape[0] != n and arr.size == k:
-                    arr = np.broadcast_to(arr.reshape(1, k), (n, k))
+                    const = arr.reshape(1)
+                elif arr.size == k and (arr.shape[0] != n or (arr.ndim == 1 and k > 1)):
+                    const = arr.reshape(k)  # one value (k elements) for every message
+                elif arr.shape[0] == n and arr.strides[0] == 0 and arr.size == n * k:
+                    const = arr[0].reshape(k)
+                if const is not None:
+                    if lf.type == "bool":
+                        const = const.astype(bool)
+                    prepared.append((lf, _Const(np.ascontiguousarray(np.broadcast_to(const, (k,)), dtype=dt), k)))
+                    continue
                 if lf.type == "bool":
                     arr = arr.astype(bool)
-                arr = np.ascontiguousarray(arr, dtype=dt)
+                arr = np.asarray(arr, dtype=dt)
                 if arr.size != n * k:
                     raise ValueError(f"{self.name}.{lf.path}: expected shape ({n}, {k}) values, got {np.shape(v)}")
                 prepared.append((lf, arr.reshape(n, k)))
-        out: list[bytes] = [b""] * n
+        groups: list = [None]
         if var_cols:
             key = np.stack(var_cols, axis=1)
-            uniq, inv = np.unique(key, axis=0, return_inverse=True)
-            inv = inv.reshape(-1)
-            groups = [np.flatnonzero(inv == g) for g in range(len(uniq))] if len(uniq) > 1 else [None]
-        else:
-            groups = [None]
-        for idx in groups:
-            rows = self._encode_group(prepared, idx, n)
-            L = rows.shape[1]
-            blob = rows.tobytes()
-            if idx is None:
-                out = [blob[i * L:(i + 1) * L] for i in range(n)]
-            else:
-                for j, i in enumerate(idx):
-                    out[i] = blob[j * L:(j + 1) * L]
-        return out
+            if not np.all(key == key[0]):
+                _, inv = np.unique(key, axis=0, return_inverse=True)
+                inv = inv.reshape(-1)
+                order = np.argsort(inv, kind="stable")
+                cuts = np.flatnonzero(np.diff(inv[order])) + 1
+                groups = np.split(order, cuts)
+        return [(idx, self._encode_group(prepared, idx, n, prefix, head)) for idx in groups]
 
-    def _encode_group(self, prepared, idx, n):
-        """Encode the messages ``idx`` (None: all) that share one layout into an (m, L) matrix."""
+    def _encode_group(self, prepared, idx, n, prefix=0, head=None):
+        """Encode the messages ``idx`` (None: all) that share one layout into an (m, prefix + L) matrix."""
         first = 0 if idx is None else int(idx[0])
         m = n if idx is None else len(idx)
         sel = (lambda a: a) if idx is None else (lambda a: a[idx])
@@ -467,7 +512,10 @@ class Layout:
             else:
                 size = np.dtype(PRIMITIVES[lf.type]).itemsize
                 if lf.array == -1:
-                    cnt = data.shape[1] if isinstance(data, np.ndarray) else len(data[first])
+                    if isinstance(data, _Const):
+                        cnt = data.count
+                    else:
+                        cnt = data.shape[1] if isinstance(data, np.ndarray) else len(data[first])
                     pos = _align(pos, 4)
                     cpos = pos
                     pos += 4
@@ -480,38 +528,56 @@ class Layout:
                     pos = _align(pos, size)
                     plan.append(pos)
                     pos += k * size
-        rows = np.zeros((m, pos), dtype=np.uint8)
-        rows[:, 1] = 1  # encapsulation: CDR little endian
+        # pass 2: a template row with everything shared by the group, then the varying fields, each
+        # written through a strided view of its own dtype (one element per row: fast in numpy)
+        tmpl = np.zeros(prefix + pos, dtype=np.uint8)
+        if head is not None:
+            tmpl[:prefix] = np.frombuffer(head(pos), np.uint8)
+        tmpl[prefix + 1] = 1  # encapsulation: CDR little endian
+        var = []  # (column in the payload, (m, k) values)
+
+        def u32(x):
+            return np.array([x], "<u4").view(np.uint8)
+
+        def put(col, row):
+            tmpl[prefix + col:prefix + col + row.nbytes] = row.view(np.uint8)
+
         for (lf, data), p in zip(prepared, plan):
             if lf.type == "string" and lf.array is None:
                 start, nb = p
-                rows[:, start:start + 4] = np.array([nb + 1], "<u4").view(np.uint8)
+                put(start, u32(nb + 1))
                 if nb:
                     if isinstance(data, tuple):
-                        rows[:, start + 4:start + 4 + nb] = np.frombuffer(data[0], np.uint8)
+                        put(start + 4, np.frombuffer(data[0], np.uint8))
                     else:
                         items = data if idx is None else [data[i] for i in idx]
-                        rows[:, start + 4:start + 4 + nb] = np.frombuffer(b"".join(items), np.uint8).reshape(m, nb)
+                        var.append((start + 4, np.frombuffer(b"".join(items), np.uint8).reshape(m, nb)))
             elif lf.type == "string":
                 items = data if idx is None else [data[i] for i in idx]
-                rows[:, p[0]:p[0] + 4] = np.array([len(items[0])], "<u4").view(np.uint8)
+                put(p[0], u32(len(items[0])))
                 for j, start in enumerate(p[1:]):
                     nb = len(items[0][j])
-                    rows[:, start:start + 4] = np.array([nb + 1], "<u4").view(np.uint8)
+                    put(start, u32(nb + 1))
                     if nb:
-                        rows[:, start + 4:start + 4 + nb] = np.frombuffer(
-                            b"".join(x[j] for x in items), np.uint8).reshape(m, nb)
+                        var.append((start + 4, np.frombuffer(b"".join(x[j] for x in items), np.uint8).reshape(m, nb)))
             elif lf.array == -1:
                 cpos, start, cnt = p
-                rows[:, cpos:cpos + 4] = np.array([cnt], "<u4").view(np.uint8)
+                put(cpos, u32(cnt))
                 if cnt:
-                    arr = sel(data) if isinstance(data, np.ndarray) else np.stack(
-                        data if idx is None else [data[i] for i in idx])
-                    b = np.ascontiguousarray(arr).view(np.uint8).reshape(m, -1)
-                    rows[:, start:start + b.shape[1]] = b
+                    if isinstance(data, _Const):
+                        put(start, data.row)
+                    elif isinstance(data, np.ndarray):
+                        var.append((start, sel(data)))
+                    else:
+                        var.append((start, np.stack(data if idx is None else [data[i] for i in idx])))
+            elif isinstance(data, _Const):
+                put(p, data.row)
             else:
-                b = np.ascontiguousarray(sel(data)).view(np.uint8).reshape(m, -1)
-                rows[:, p:p + b.shape[1]] = b
+                var.append((p, sel(data)))
+        rows = np.empty((m, prefix + pos), dtype=np.uint8)
+        rows[:] = tmpl
+        for start, v in var:
+            strided_view(rows, prefix + start, v.dtype, v.shape[1])[...] = v
         return rows
 
     # ---------------- decode ----------------

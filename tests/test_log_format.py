@@ -566,3 +566,239 @@ def test_imu_layout_is_324_bytes_as_documented():
     v = lf.header_values(np.array([T0]), "body")
     v.update({lf_.path: 0.0 for lf_ in layout.leaves if lf_.path not in v})
     assert len(layout.encode(v, 1)[0]) == 324
+
+
+# ---------------------------------------------------------------- bulk MCAP writer (scenarios._mcap_chunks)
+def _interleaved_log(path, *, chunk_size=4096, compression="zstd", windows=None):
+    """IMU at 400 Hz, GPS at 10 Hz, truth at 50 Hz, NavSolution (state_names in the first message:
+    two layouts) and measurements of varying size, written out of order across calls (optionally
+    streamed with advance() every ``windows`` IMU samples). Returns {topic: t_ns}."""
+    rng = np.random.default_rng(11)
+    n = 1200
+    t = T0 + np.arange(n, dtype=np.int64) * 2_500_000
+    g, a = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+    tg, tt, tn = t[::40], t[::8], t[::20]
+    tm = t[5::100]
+    cov = rng.standard_normal((len(tn), 4, 4))
+    gp, gv = rng.standard_normal((len(tg), 3)), rng.standard_normal((len(tg), 3))
+    with LogWriter(path, META, chunk_size=chunk_size, compression=compression) as w:
+        steps = [(0, n)] if windows is None else [(i, min(i + windows, n)) for i in range(0, n, windows)]
+        for lo, hi in steps:
+            s = slice(lo, hi)
+            sg, st, sn, sm = ((x >= t[lo]) & (x <= t[hi - 1]) for x in (tg, tt, tn, tm))
+            w.write_truth(tt[st], np.ones((st.sum(), 3)), np.ones((st.sum(), 3)), np.ones((st.sum(), 4)),
+                          np.ones((st.sum(), 3)), np.ones((st.sum(), 3)))
+            w.write_imu(t[s], g[s], a[s])
+            w.write_gps(tg[sg], gp[sg], gv[sg])
+            w.write_nav(lf.TOPIC_NAV_FORWARD, tn[sn], np.zeros((sn.sum(), 3)), np.zeros((sn.sum(), 3)),
+                        np.zeros((sn.sum(), 4)), cov[sn], state_names=list("abcd"))
+            k = int(sm.sum())
+            sizes = 3 + np.flatnonzero(sm) % 4
+            w.write_measurement(tm[sm], ["gps"] * k, np.ones(k, bool), [""] * k,
+                                [np.ones(m) for m in sizes], [np.ones(m * m) for m in sizes], np.ones(k))
+            if windows is not None and hi < n:
+                w.advance(int(t[hi]))
+    return {lf.TOPIC_IMU: t, lf.TOPIC_GPS: tg, lf.TOPIC_TRUTH: tt, lf.TOPIC_NAV_FORWARD: tn, lf.TOPIC_MEASUREMENTS: tm}
+
+
+def _records(path):
+    """Top-level records of an MCAP file with their byte offsets (parsed with the mcap library's
+    record classes, chunks not broken up)."""
+    from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message, MessageIndex,
+                              Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
+    from mcap.data_stream import ReadDataStream
+    import io
+    classes = {1: Header, 2: Footer, 3: Schema, 4: Channel, 5: Message, 6: Chunk, 7: MessageIndex, 8: ChunkIndex,
+               12: Metadata, 13: MetadataIndex, 11: Statistics, 14: SummaryOffset, 15: DataEnd}
+    data = Path(path).read_bytes()
+    assert data[:8] == data[-8:] == b"\x89MCAP0\r\n"
+    out, p = [], 8
+    while p < len(data) - 8:
+        op, ln = data[p], int.from_bytes(data[p + 1:p + 9], "little")
+        body = io.BytesIO(data[p + 9:p + 9 + ln])
+        rec = classes[op].read(ReadDataStream(body), ln) if op == 5 else classes[op].read(ReadDataStream(body))
+        out.append((p, 9 + ln, rec))
+        p += 9 + ln
+    assert p == len(data) - 8
+    return data, out
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_chunks_and_indexes_follow_the_mcap_spec(tmp_path, compression):
+    """Every Chunk/Message Index/Chunk Index/Statistics field checked against the records
+    themselves (mcap library record parsers and its chunk decompression with CRC validation): chunk
+    times are the min/max of its messages, each Message Index entry points at a Message record of
+    that channel and time and together they cover the chunk, each Chunk Index points at its chunk
+    and index records, the statistics count what is in the file, the footer CRC covers the summary."""
+    import zlib
+    from mcap.records import Chunk, ChunkIndex, Footer, Message, MessageIndex, Statistics, SummaryOffset
+    from mcap.stream_reader import breakup_chunk
+    path = tmp_path / "c.mcap"
+    times = _interleaved_log(path, compression=compression)
+    data, recs = _records(path)
+    by_offset = {p: (ln, r) for p, ln, r in recs}
+    chunks = [(p, ln, r) for p, ln, r in recs if isinstance(r, Chunk)]
+    assert len(chunks) > 20  # 4 KiB chunks of ~430 kB
+    all_msgs = []
+    channels = {}
+    for i, (p, ln, ch) in enumerate(chunks):
+        assert ch.compression == {"none": ""}.get(compression, compression)
+        assert ch.uncompressed_crc != 0
+        inner = breakup_chunk(ch, validate_crc=True)  # raises on a CRC mismatch
+        channels.update({r.id: r.topic for r in inner if type(r).__name__ == "Channel"})
+        msgs = [r for r in inner if isinstance(r, Message)]
+        assert msgs and ch.message_start_time == min(m.log_time for m in msgs)
+        assert ch.message_end_time == max(m.log_time for m in msgs)
+        raw = ch.data if compression == "none" else (
+            __import__("zstandard").ZstdDecompressor().decompress(ch.data, max_output_size=ch.uncompressed_size)
+            if compression == "zstd" else __import__("lz4.frame").frame.decompress(ch.data))
+        assert len(raw) == ch.uncompressed_size
+        # the Message Index records right after the chunk
+        j = [k for k, (q, _, _) in enumerate(recs) if q == p][0] + 1
+        covered = 0
+        while j < len(recs) and isinstance(recs[j][2], MessageIndex):
+            mi = recs[j][2]
+            for t, off in mi.records:
+                assert raw[off] == 5
+                cid, lt = int.from_bytes(raw[off + 9:off + 11], "little"), int.from_bytes(raw[off + 15:off + 23], "little")
+                assert (cid, lt) == (mi.channel_id, t)
+            covered += len(mi.records)
+            j += 1
+        assert covered == len(msgs)
+        all_msgs += msgs
+    lt = [m.log_time for m in all_msgs]
+    assert lt == sorted(lt)
+    for topic, t in times.items():
+        cid = [c for c, tp in channels.items() if tp == topic][0]
+        _eq([m.log_time for m in all_msgs if m.channel_id == cid], t)
+    # summary
+    footer = recs[-1][2]
+    assert isinstance(footer, Footer)
+    cidx = [r for _, _, r in recs if isinstance(r, ChunkIndex)]
+    assert [c.chunk_start_offset for c in cidx] == [p for p, _, _ in chunks]
+    for c, (p, ln, ch) in zip(cidx, chunks):
+        assert c.chunk_length == ln and c.compressed_size == len(ch.data) and c.uncompressed_size == ch.uncompressed_size
+        assert (c.message_start_time, c.message_end_time) == (ch.message_start_time, ch.message_end_time)
+        total = 0
+        for cid, off in c.message_index_offsets.items():
+            mln, mi = by_offset[off]
+            assert isinstance(mi, MessageIndex) and mi.channel_id == cid
+            total += mln
+        assert total == c.message_index_length
+    stats = [r for _, _, r in recs if isinstance(r, Statistics)][0]
+    assert stats.message_count == len(all_msgs) and stats.chunk_count == len(chunks)
+    assert stats.message_start_time == lt[0] and stats.message_end_time == lt[-1]
+    assert stats.channel_message_counts == {c: sum(m.channel_id == c for m in all_msgs) for c in channels}
+    assert stats.channel_count == len(channels) == 5
+    offs = [r for _, _, r in recs if isinstance(r, SummaryOffset)]
+    assert {o.group_opcode for o in offs} >= {3, 4, 8, 11, 13}
+    for o in offs:
+        if o.group_length:
+            assert data[o.group_start] == o.group_opcode
+    crc = zlib.crc32(data[footer.summary_start:len(data) - 8 - 9 - 20] + data[len(data) - 8 - 29:len(data) - 8 - 4])
+    assert footer.summary_crc == crc
+
+
+@pytest.mark.parametrize("windows", [None, 37])
+def test_mcap_reader_index_stream_and_topic_filter_agree(tmp_path, windows):
+    """The mcap reader reads the same messages through the chunk indexes (all topics, one topic:
+    uses the Chunk Index channel map) and as a stream; streaming with advance() gives the same
+    messages as writing at once; chunks stay full-size across advance() calls."""
+    from mcap.reader import NonSeekingReader, SeekingReader
+    path = tmp_path / "s.mcap"
+    times = _interleaved_log(path, windows=windows)
+    with open(path, "rb") as f:
+        idx = [(c.topic, m.log_time, m.data) for _, c, m in SeekingReader(f, validate_crcs=True).iter_messages(
+            log_time_order=False)]
+    with open(path, "rb") as f:
+        stream = [(c.topic, m.log_time, m.data) for _, c, m in NonSeekingReader(f, validate_crcs=True).iter_messages()]
+    with open(path, "rb") as f:
+        gps = [m.log_time for _, c, m in SeekingReader(f).iter_messages(topics=[lf.TOPIC_GPS])]
+    assert idx == stream and len(idx) == sum(len(t) for t in times.values())
+    assert [x[1] for x in idx] == sorted(x[1] for x in idx)
+    _eq(gps, times[lf.TOPIC_GPS])
+    with open(path, "rb") as f:
+        summ = SeekingReader(f).get_summary()
+    sizes = [c.uncompressed_size for c in summ.chunk_indexes]
+    assert all(s > 4096 for s in sizes[:-1])  # every chunk but the last is full, windows or not
+    if windows:
+        ref = tmp_path / "ref.mcap"
+        _interleaved_log(ref)
+        with open(ref, "rb") as f:
+            assert [(c.topic, m.log_time, m.data) for _, c, m in SeekingReader(f).iter_messages(log_time_order=False)] == idx
+
+
+def test_equal_stamps_keep_call_order(tmp_path):
+    """Messages with the same log_time are written in call order (a stable merge), also when a
+    later call brings earlier times."""
+    path = tmp_path / "ties.mcap"
+    t = T0 + np.array([0, 10, 10, 20], dtype=np.int64)
+    with LogWriter(path, META) as w:
+        w.write_gps(t[1:3], [[1.0, 0, 0], [2.0, 0, 0]], np.zeros(3))
+        w.write_imu(t, np.arange(12.0).reshape(4, 3), np.zeros((4, 3)))
+        w.write_gps(t[[0, 3]], [[3.0, 0, 0], [4.0, 0, 0]], np.zeros(3))
+    dec = DecoderFactory()
+    order = []
+    with open(path, "rb") as f:
+        for _, c, m, ros in make_reader(f, decoder_factories=[dec]).iter_decoded_messages(log_time_order=False):
+            order.append((m.log_time - T0, c.topic, ros.position[0] if c.topic == "/gps" else ros.angular_velocity.x))
+    assert order == [(0, "/imu", 0.0), (0, "/gps", 3.0), (10, "/gps", 1.0), (10, "/gps", 2.0), (10, "/imu", 3.0),
+                     (10, "/imu", 6.0), (20, "/imu", 9.0), (20, "/gps", 4.0)]
+
+
+def test_streaming_memory_is_bounded_by_a_chunk(tmp_path):
+    """With advance() per window, the writer holds at most one open chunk plus the current window:
+    the tracemalloc peak (numpy reports its buffers) stays far below the size of the log."""
+    import tracemalloc
+    n_win, per = 60, 4000
+    rng = np.random.default_rng(2)
+    g = rng.standard_normal((per, 3))
+    path = tmp_path / "big.mcap"
+    with LogWriter(path, META) as w:
+        w.write_imu(T0 + np.arange(per, dtype=np.int64), g, g)  # warm-up (codec caches)
+        w.advance(T0 + per)
+        tracemalloc.start()
+        for i in range(1, n_win):
+            t = T0 + np.arange(i * per, (i + 1) * per, dtype=np.int64)
+            w.write_imu(t, g, g)
+            w.advance(int(t[-1]) + 1)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    total = n_win * per * 355  # uncompressed records
+    assert total > 80e6 and peak < 8e6, peak  # one window is 1.4 MB of records, a chunk 1 MiB
+    assert len(read_log(path, topics=["/imu"]).imu) == n_win * per
+
+
+def test_nine_messages_of_fixed_arrays(tmp_path):
+    """A batch of N = 9 IMU samples (N equal to the 9 elements of a covariance) is one value for
+    all messages, not one element per message (the codec used to reject it)."""
+    path = tmp_path / "nine.mcap"
+    g = np.arange(27.0).reshape(9, 3)
+    with LogWriter(path, META) as w:
+        w.write_imu(T0 + np.arange(9, dtype=np.int64), g, g, gyro_covariance=np.diag([1.0, 2, 3]))
+    log = read_log(path)
+    _eq(log.imu.gyro, g)
+    _eq(log.imu.angular_velocity_covariance, np.broadcast_to(np.diag([1.0, 2, 3]), (9, 3, 3)))
+    _eq(log.imu.orientation_covariance[:, 0, 0], -np.ones(9))
+
+
+def test_encode_groups_rows_are_the_payloads_after_a_head():
+    """``Layout.encode_groups`` gives per layout group a matrix whose columns after ``prefix`` are the
+    payloads of ``encode`` (checked against mcap_ros2 in test_layout_matches_reference_encoder) and
+    whose first columns are ``head(L)``; broadcast and per-message values encode the same bytes."""
+    layout = lf.known_layout(f"{lf.PKG}/NavSolution")
+    n = 5
+    rng = np.random.default_rng(4)
+    v = lf.header_values(T0 + np.arange(n, dtype=np.int64), "earth")
+    v.update({"position_e": rng.standard_normal((n, 3)), "velocity_e": np.broadcast_to(np.ones(3), (n, 3)),
+              "q_eb": [0.0, 0.0, 0.0, 1.0], "state": np.zeros((n, 0)), "covariance": rng.standard_normal((n, 4)),
+              "state_names": [["a", "b"]] + [[]] * (n - 1)})
+    ref = layout.encode(v, n)
+    groups = layout.encode_groups(v, n, prefix=3, head=lambda L: bytes([L % 256, 7, 9]))
+    assert sorted(list(i) for i, _ in groups) == [[0], [1, 2, 3, 4]]
+    for idx, rows in groups:
+        for j, i in enumerate(idx):
+            assert rows[j, 3:].tobytes() == ref[i]
+            assert list(rows[j, :3]) == [len(ref[i]) % 256, 7, 9]
+    v2 = dict(v, velocity_e=np.ones((n, 3)), q_eb=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)))
+    assert layout.encode(v2, n) == ref
