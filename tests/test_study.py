@@ -1,0 +1,228 @@
+"""Studies (scenarios/study): study files, resumable execution, executors, consistency verdicts.
+
+The studies here are small (2-4 runs of the atek coast T+60..T+100/T+150 with the 20 Hz IMU); the
+200-run study is docs/studies.md's measurement and ``atek-coast-mc`` in scenarios/library/studies.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from scenarios.errors import UserError
+from scenarios.study.execute import finished_runs, run_study
+from scenarios.study.metrics import mean_band, nees
+from scenarios.study.studyfile import (RunConfig, apply_params, load_base, load_study, run_seed,
+                                       study_from_text)
+
+HEAD = """
+[study]
+name = "{name}"
+scenario = "atek"
+seed = 5
+runs = {runs}
+{extra}
+[set]
+"run.t_end_s" = {t_end}
+"tuning.accel_white" = 4.903325e-4
+"tuning.gyro_white" = 5.817764e-4
+"tuning.vector_white" = 1.0e-4
+"""
+
+
+def study_text(name="t", runs=2, t_end=100.0, extra="", body=""):
+    return HEAD.format(name=name, runs=runs, t_end=t_end, extra=extra) + body
+
+
+def write_study(tmp_path, **kw):
+    p = tmp_path / f"{kw.get('name', 't')}.toml"
+    p.write_text(study_text(**kw))
+    return load_study(p)
+
+
+# ------------------------------------------------------------------------------------------------
+# study files
+# ------------------------------------------------------------------------------------------------
+def test_library_studies_load():
+    """The example studies parse and every variant builds (names checked against the dataclasses)."""
+    assert load_study("atek-coast-mc").n_runs == 200
+    mis = load_study("atek-mistuned")
+    assert [v.label for v in mis.variants][0] == "matched" and len(mis.variants) == 4
+    sweep = load_study("atek-camera-sweep")
+    assert len(sweep.variants) == 18 and "scenario.cameras.0.rate_hz" in sweep.varied
+
+
+def test_apply_params_sets_dotted_fields_without_touching_the_base():
+    base = load_base(study_from_text(study_text()))
+    g0 = base["tuning"].gyro_bias.sigma
+    cfg = apply_params(base, {"tuning.gyro_bias.sigma": {"times": 0.1}, "tuning.gyro_bias.mode": "E",
+                              "scenario.cameras.1.rate_hz": 2.0, "scenario.gps.outages_s": [[100.0, 120.0]],
+                              "run.t_end_s": 150.0})
+    assert cfg["tuning"].gyro_bias.sigma == pytest.approx(0.1 * g0)
+    assert cfg["tuning"].gyro_bias.mode == "E"
+    assert cfg["scenario"].cameras[1].rate_hz == 2.0 and cfg["scenario"].cameras[0].rate_hz == 1.0
+    assert cfg["scenario"].gps.outages_s == [[100.0, 120.0]]
+    assert cfg["run"].t_end_s == 150.0
+    assert base["tuning"].gyro_bias.sigma == g0 and base["scenario"].cameras[1].rate_hz == 1.0
+    assert base["run"] == RunConfig()
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("tuning.gyro_bias.sigmaa", "1.0", ["sigmaa", "sigma", "mode"]),
+    ("scenario.cameras.5.rate_hz", "2.0", ["index '5'"]),
+    ("scenario.imu.rate", "2.0", ["'rate'", "rate_hz"]),
+    ("filter.gain", "2.0", ["'filter.gain'", "scenario", "tuning", "run"]),
+    ("tuning.gyro_bias.mode", "1.0", ["expected a string"]),
+    ("scenario.imu.rate_hz", "7.0", ["must divide"]),
+])
+def test_bad_parameter_is_named(key, value, words):
+    with pytest.raises(UserError) as e:
+        study_from_text(study_text(body=f'[[variants]]\n"{key}" = {value}\n'), "bad.toml")
+    msg = str(e.value)
+    assert "bad.toml" in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_unknown_table_and_key():
+    with pytest.raises(UserError, match=r"unknown table \[sweep\]"):
+        study_from_text(study_text() + "[sweep]\nx = 1\n")
+    with pytest.raises(UserError, match="unknown key study.run;"):
+        study_from_text(study_text(extra="run = 3"))
+
+
+def test_seeds_depend_on_study_seed_and_replicate_only():
+    st = study_from_text(study_text(runs=3, body='[grid]\n"run.report_scale" = [1.0, 0.5]\n'))
+    specs = st.run_specs()
+    assert len(specs) == 6 and len({s.run_id for s in specs}) == 6
+    # common random numbers: replicate r has the same seed in every variant
+    assert [s.seed for s in specs[:3]] == [s.seed for s in specs[3:]]
+    assert specs[1].seed == run_seed(5, 1) == int(np.random.SeedSequence(5, spawn_key=(1,)).generate_state(
+        2, dtype=np.uint32).view(np.uint64)[0] >> np.uint64(1))
+    assert len({s.seed for s in specs[:3]}) == 3
+
+
+def test_random_draws_are_reproducible():
+    body = '[random]\ndraws = 3\n"run.report_scale" = {loguniform = [0.2, 2.0]}\n"tuning.gyro_bias.mode" = {choice = ["E", "C"]}\n'
+    a = study_from_text(study_text(body=body))
+    b = study_from_text(study_text(body=body))
+    assert [v.params for v in a.variants] == [v.params for v in b.variants]
+    assert all(0.2 <= v.params["run.report_scale"] <= 2.0 for v in a.variants)
+
+
+def test_chi_square_band():
+    """mean_band against a direct Monte Carlo of the mean of N chi2(3) values (2.5 %/97.5 %)."""
+    lo, hi = mean_band(3 * 50, 50)
+    rng = np.random.default_rng(0)
+    m = rng.chisquare(3, (20000, 50)).mean(1)
+    assert np.mean(m < lo) == pytest.approx(0.025, abs=0.004)
+    assert np.mean(m > hi) == pytest.approx(0.025, abs=0.004)
+    e = rng.normal(size=(5, 3))
+    P = np.tile(np.diag([1.0, 4.0, 9.0]), (5, 1, 1))
+    assert np.allclose(nees(e, P), np.sum(e ** 2 / [1, 4, 9], 1))
+
+
+# ------------------------------------------------------------------------------------------------
+# bad input before any work
+# ------------------------------------------------------------------------------------------------
+def test_too_many_runs_need_yes(tmp_path):
+    st = write_study(tmp_path, runs=50, extra="max_runs = 100",
+                     body='[grid]\n"run.report_scale" = [1.0, 0.5, 0.2]\n')
+    out = tmp_path / "out"
+    with pytest.raises(UserError, match=r"150 runs .*max_runs = 100.*--yes"):
+        run_study(st, out, workers=0, progress=False)
+    assert not out.exists()
+
+
+def test_unreachable_scheduler(tmp_path):
+    st = write_study(tmp_path)
+    out = tmp_path / "out"
+    with pytest.raises(UserError, match="tcp://127.0.0.1:9.*cannot reach"):
+        run_study(st, out, scheduler="tcp://127.0.0.1:9", progress=False)
+    assert not out.exists()
+
+
+def test_cli_reports_bad_study(tmp_path, capsys):
+    from scenarios.cli import main
+    p = tmp_path / "bad.toml"
+    p.write_text(study_text(body='[[variants]]\n"tuning.nope" = 1.0\n'))
+    assert main(["study", str(p), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml" in err and "nope" in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------------------------------------
+# execution: resume, executors, verdicts
+# ------------------------------------------------------------------------------------------------
+def _tables(out):
+    return pd.read_parquet(out / "metrics.parquet"), pd.read_parquet(out / "series.parquet")
+
+
+@pytest.fixture(scope="module")
+def four_runs(tmp_path_factory):
+    """A 4-run study (2 variants x 2 replicates, T+60..T+100), run inline in two halves (resume)."""
+    tmp = tmp_path_factory.mktemp("study")
+    st = write_study(tmp, name="four", runs=2, body='[grid]\n"run.report_scale" = [1.0, 0.5]\n')
+    out = tmp / "inline"
+    s1 = run_study(st, out, workers=0, max_runs=2, progress=False)
+    assert s1["runs_done_now"] == 2 and s1["runs_remaining"] == 2
+    assert not (out / "metrics.parquet").exists()
+    first = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.parquet")}
+    s2 = run_study(st, out, workers=0, progress=False)
+    return st, out, first, s2
+
+
+def test_resume_skips_finished_runs(four_runs):
+    st, out, first, s2 = four_runs
+    assert s2["runs_done_now"] == 2 and s2["runs_skipped"] == 2 and s2["runs_remaining"] == 0
+    # the first half's files were not rewritten
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.parquet") if p.name in first} == first
+    assert finished_runs(out) == {s.run_id for s in st.run_specs()}
+    met, ser = _tables(out)
+    assert set(met.run_id) == {s.run_id for s in st.run_specs()}
+    assert {"study", "run_id", "seed", "run.report_scale", "metric", "value"} <= set(met.columns)
+    assert {"nees_att", "rms_att_deg", "nis_hor", "psi_c0_err_final_deg"} <= set(met.metric)
+    assert {"nees_pos", "nees_att", "nis_gps_pos"} <= set(ser.quantity)
+    assert (out / "study.toml").read_text() == st.text
+    assert (out / "report.html").exists()
+
+
+def test_process_pool_gives_identical_tables(four_runs, tmp_path):
+    st, out, _, _ = four_runs
+    s = run_study(st, tmp_path / "pool", workers=2, progress=False, report=False)
+    assert s["runs_done_now"] == 4
+    a, b = _tables(out), _tables(tmp_path / "pool")
+    pd.testing.assert_frame_equal(a[0], b[0])
+    pd.testing.assert_frame_equal(a[1], b[1])
+
+
+def test_dask_local_cluster_gives_identical_tables(four_runs, tmp_path):
+    from dask.distributed import Client, LocalCluster
+    st, out, _, _ = four_runs
+    with LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cl, \
+            Client(cl) as client:
+        s = run_study(st, tmp_path / "dask", client=client, progress=False, report=False)
+    assert s["executor"] == "dask" and s["runs_done_now"] == 4
+    a, b = _tables(out), _tables(tmp_path / "dask")
+    pd.testing.assert_frame_equal(a[0], b[0])
+    pd.testing.assert_frame_equal(a[1], b[1])
+
+
+def test_mistuned_variant_is_flagged(tmp_path):
+    """Camera misalignment told at 1/10 of the simulated 1 deg: the attitude errors are ~10 times
+    the filter's sigma, NEES far above any band; the report and verdicts.json say so."""
+    st = write_study(tmp_path, name="mis", runs=2, t_end=120.0,
+                     body='[[variants]]\nname = "matched"\n[[variants]]\nname = "mis 1/10"\n'
+                          '"tuning.camera_misalignment.sigma" = {times = 0.1}\n')
+    out = tmp_path / "out"
+    run_study(st, out, workers=2, progress=False)
+    v = json.loads((out / "verdicts.json").read_text())
+    assert v["mis 1/10"]["consistent"] is False
+    assert "att NEES" in v["mis 1/10"]["text"] and "optimistic" in v["mis 1/10"]["text"]
+    page = (out / "report.html").read_text()
+    assert "INCONSISTENT" in page and "mis 1/10" in page
+    met = pd.read_parquet(out / "metrics.parquet")
+    att = met[met.metric == "nees_att"].groupby("variant_label").value.mean()
+    assert att["mis 1/10"] > 5 * att["matched"]
