@@ -1,25 +1,49 @@
-"""``horizon-nav demo``: the main job on the built-in default scenario (what ``make demo`` runs)."""
+"""``horizon-nav demo`` (``make demo``): the main job on the built-in ATEK scenario.
+
+1. simulate ``atek`` with rendered camera images (two cameras at 1 Hz in the coast T+60..T+430)
+   into ``logs/atek.mcap`` (skipped when that log exists and ``--fresh`` is not given);
+2. replay it: vision front end in worker processes, filter, smoother
+   (``logs/atek.solution.mcap``, Rerun recording ``logs/atek.rrd``);
+3. print the summary (attitude errors against the simulator's truth).
+
+Open the recording with ``rerun logs/atek.rrd``.
+"""
 from __future__ import annotations
 
-
-from nav import timescales
-from scenarios.commands import ephem
+import argparse
+import time
+from pathlib import Path
 
 NAME = "demo"
-HELP = "run the most complete pipeline available on the built-in ATEK scenario"
+HELP = "simulate the ATEK flight with images, replay it, print the summary, write logs/atek.rrd"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("-o", "--output-dir", default="logs", help="where outputs go (default logs/)")
+    p.add_argument("--out-dir", default="logs", help="output folder (default logs/)")
+    p.add_argument("--fresh", action="store_true", help="simulate again even if logs/atek.mcap exists")
+    p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def run(args) -> int:
-    t0 = timescales.parse_utc("2019-06-13T02:21:00Z")
-    print("horizon-nav demo: the flight simulator and replay are not built yet; this demo shows the")
-    print("foundation: where the Sun and Moon were for the ATEK/MAPHEUS-8 flight (003 §7).\n")
-    for label, dt, h in (("lift-off, Esrange, ground", 0, 0.0), ("T+171 s, 230 km (003 §7.4 TRIAD epoch)", 171, 230e3)):
-        print(f"== {label}")
-        ephem.run(type("A", (), {"time": timescales.format_utc(t0 + dt * timescales.NS_PER_S), "lat": 67.89,
-                                  "lon": 21.10, "height": h, "dut1": 0.0, "json": False})())
-        print()
-    return 0
+    from scenarios.commands import replay as replay_cmd
+    from scenarios.commands import simulate as sim_cmd
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    log = out / "atek.mcap"
+    t0 = time.perf_counter()
+    if args.fresh or not log.is_file():
+        sa = argparse.Namespace(scenario="atek", output=str(log), seed=0, duration=None, images=True,
+                                jpeg_quality=None, truth_rate=None, vectors=False, quiet=args.quiet)
+        sim_cmd.run(sa)
+    else:
+        print(f"{log}: exists, not simulated again (--fresh to redo)")
+    t1 = time.perf_counter()
+    ra = argparse.Namespace(log=str(log), output=str(out / "atek.solution.mcap"), tuning=None, t_from="T+60",
+                            t_to="T+430", cameras=None, targets="earth,sun", init=None, init_file=None, smoother=True,
+                            vision="auto", vision_config=None, workers=args.workers, rrd=str(out / "atek.rrd"),
+                            no_rerun=False, spawn=False, json=False, quiet=args.quiet)
+    rc = replay_cmd.run(ra)
+    t2 = time.perf_counter()
+    print(f"\ndemo: simulation {t1 - t0:.0f} s, replay {t2 - t1:.0f} s. Open the recording with: rerun {out / 'atek.rrd'}")
+    return rc

@@ -1,0 +1,116 @@
+"""Camera calibration (scenarios/commands/calibrate.py) on chessboards rendered through a known
+fisheye camera with vision.camera.unproject (every pixel's ray intersected with the board plane,
+4x4 supersampled so the corners are sub-pixel accurate): the recovered camera must reproject like
+the true one."""
+import math
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from nav.rotation import rotvec_to_matrix
+from scenarios.camera_file import load_camera
+from scenarios.commands.calibrate import calibrate_images, parse_board
+from scenarios.errors import UserError
+from vision.camera import from_fov, project, unproject
+
+BOARD = (9, 6)
+SQUARE = 0.025
+
+
+def true_camera():
+    """ATEK-like lens (94.4 deg over the width, D = [0.08, -0.01, 0, 0]) at 960x540, off-centre."""
+    c = from_fov(960, 540, 94.4, k_shape=(1.0, 0.08, -0.01, 0.0, 0.0), name="truth")
+    from dataclasses import replace
+    return replace(c, cx=c.cx + 6.0, cy=c.cy - 4.0)
+
+
+def render_board(cam, rvec, t, ss=4):
+    """Grey image of a 10x7-square chessboard (board frame: corners at (i, j) * SQUARE, z = 0) at
+    pose x_c = R x_b + t; white margin one square wide, grey background."""
+    o = (np.arange(ss) + 0.5) / ss - 0.5
+    v, u = np.mgrid[0:cam.height, 0:cam.width].astype(float)
+    acc = np.zeros((cam.height, cam.width))
+    R = rotvec_to_matrix(np.asarray(rvec, float))
+    n = R[:, 2]
+    for du in o:
+        for dv in o:
+            d = unproject(cam, np.stack([u + du, v + dv], -1))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                s = (n @ t) / (d @ n)                 # ray-plane distance
+                p = (s[..., None] * d - t) @ R        # board coordinates
+            i = np.floor(p[..., 0] / SQUARE + 1.0)
+            j = np.floor(p[..., 1] / SQUARE + 1.0)
+            on = (s > 0) & (i >= -1) & (i < BOARD[0] + 2) & (j >= -1) & (j < BOARD[1] + 2)
+            inner = (i >= 0) & (i < BOARD[0] + 1) & (j >= 0) & (j < BOARD[1] + 1)
+            val = np.where(on, np.where(inner, np.where((i + j) % 2 == 0, 20.0, 235.0), 235.0), 128.0)
+            acc += np.nan_to_num(val, nan=128.0)
+    return np.clip(acc / ss**2, 0, 255).astype(np.uint8)
+
+
+def board_pose(rvec, az_deg, off_deg, dist):
+    """(rvec, t) putting the board centre at ``dist`` along the ray ``off_deg`` off the axis at
+    azimuth ``az_deg`` in the image, the board rotated by ``rvec``."""
+    R = rotvec_to_matrix(np.asarray(rvec, float))
+    a, o = math.radians(az_deg), math.radians(off_deg)
+    d = np.array([math.sin(o) * math.cos(a), math.sin(o) * math.sin(a), math.cos(o)])
+    centre = np.array([(BOARD[0] - 1) / 2, (BOARD[1] - 1) / 2, 0.0]) * SQUARE
+    return rvec, dist * d - R @ centre
+
+
+POSES = [board_pose((0, 0, 0), 0, 0, 0.3), board_pose((0, -0.5, 0), 0, 28, 0.3),
+         board_pose((0, 0.5, 0.1), 180, 28, 0.3), board_pose((0.4, 0, 0), 90, 14, 0.3),
+         board_pose((-0.4, 0, -0.1), 270, 14, 0.3), board_pose((0.3, -0.4, 0.2), 30, 30, 0.32),
+         board_pose((-0.3, 0.4, 0.3), 210, 30, 0.32), board_pose((0.3, 0.4, -0.2), 150, 30, 0.32),
+         board_pose((-0.3, -0.4, 0.0), 330, 30, 0.32), board_pose((0.0, 0.0, 0.7), 0, 10, 0.4)]
+
+
+@pytest.fixture(scope="module")
+def boards():
+    cam = true_camera()
+    return cam, {f"view{i}": render_board(cam, r, np.array(t)) for i, (r, t) in enumerate(POSES)}
+
+
+def test_calibration_recovers_the_camera(boards, tmp_path):
+    cam, imgs = boards
+    cal = calibrate_images(imgs, BOARD, SQUARE, "cal")
+    assert len(cal.per_image_px) >= 6, cal.skipped
+    assert cal.rms_px < 0.2, cal.rms_px          # sub-pixel corners of a noise-free rendering
+    got = cal.camera
+    assert abs(got.fx / cam.fx - 1) < 5e-3 and abs(got.fy / cam.fy - 1) < 5e-3, (got.fx, cam.fx)
+    assert abs(got.cx - cam.cx) < 1.5 and abs(got.cy - cam.cy) < 1.5, (got.cx, got.cy)
+    # the calibrated model reprojects rays like the truth where the boards were (theta < 40 deg)
+    th = np.radians(np.linspace(0, 40, 9))
+    ph = np.radians(np.arange(0, 360, 30))
+    T, P = np.meshgrid(th, ph)
+    rays = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    d = np.linalg.norm(project(got, rays) - project(cam, rays), axis=1)
+    assert d.max() < 1.0, d.max()
+
+
+def test_cli_writes_a_camera_file(boards, tmp_path):
+    cam, imgs = boards
+    paths = []
+    for k, im in imgs.items():
+        p = tmp_path / f"{k}.png"
+        cv2.imwrite(str(p), im)
+        paths.append(str(p))
+    out = tmp_path / "cam.toml"
+    r = subprocess.run([sys.executable, "-m", "scenarios.cli", "calibrate", *paths, "--board", "9x6",
+                        "--square", "0.025", "-o", str(out)], capture_output=True, text=True, cwd=".")
+    assert r.returncode == 0, r.stderr
+    assert "RMS reprojection error" in r.stdout
+    c = load_camera(out)
+    assert (c.width, c.height) == (960, 540) and abs(c.fx / cam.fx - 1) < 5e-3
+
+
+def test_bad_input():
+    with pytest.raises(UserError, match="--board"):
+        parse_board("9by6")
+    blank = {f"b{i}": np.full((120, 160), 128, np.uint8) for i in range(3)}
+    with pytest.raises(UserError, match="found in 0 of 3"):
+        calibrate_images(blank, BOARD, SQUARE)
+    with pytest.raises(UserError, match="--square"):
+        calibrate_images(blank, BOARD, -1.0)

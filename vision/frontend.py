@@ -1,0 +1,808 @@
+"""The vision front end, assembled: from a raw, distorted camera frame to Earth-nadir, Sun and Moon
+direction vectors with covariances (003 §3, §5; 000 §2.3-2.4; 002 §3; 004 §2.2).
+
+Pipeline per target (`process_frame`)
+-------------------------------------
+1. Detection (`vision.candidates.detect`): brightness gate, threshold, border-following edge
+   search. Earth: image border and payload-mask boundary only (003 §3.1); Sun/Moon: plus search
+   lines ``2 f tan(alpha_min)`` apart (003 §5).
+2. Candidate scoring, cheap: each candidate (longest first, at most ``max_candidates``; after
+   one is accepted, only those at least ``compete_fraction`` as long) is subsampled to at most
+   ``score_rays`` pixels spread along it, only those pixels are unprojected
+   (`vision.camera.unproject`), and fitted directly; when more than ``direct_outlier_fraction``
+   of them miss the cone by ``ransac_threshold_px`` (converted per ray to an angle,
+   `vision.ransac.pixel_angle`), the pre-verified RANSAC cone fit (`vision.ransac.ransac_cone`,
+   000 §2.3) runs instead. Earth: known alpha from the height (prior) and the effective
+   atmosphere thickness d (003 eq. (5)), in the fit frame of the limb model (`vision.oblate`).
+   Sun/Moon: alpha estimated (003 §5).
+3. Acceptance per candidate, each failure giving a reason: enough pixels and inliers, residual
+   (mean squared angular distance of the inliers from the cone, `vision.nadir.angle_residual`)
+   below ``max_residual`` (003 §7.3, re-derived below), Sun/Moon apparent radius inside
+   ``[alpha_min, alpha_max]``, within ``gate_deg`` of a predicted direction when the prior gives
+   one, a disc that is bright inside and dark around (`_disc_check`), the implied conic passes through the image (003 §3.3 sanity check),
+   and the mirrored-nadir test (002 §3): pixels a few pixels on the body side of the edge must be
+   bright and those on the space side dark (`vision.nadir.earth_side_check`); a fit that fails it
+   is retried from its mirror image (`vision.nadir.mirrored_direction`, refined locally).
+4. The accepted candidate with the smallest residual wins (003 §3.4). Only the winner is
+   processed fully: all its pixels are unprojected with the Jacobian
+   (`vision.camera.unproject_jacobian`), inliers re-selected, refitted, and the O(m) covariance of
+   003 eq. (33) with the correlated pixel noise (R, L) of eqs. (34)-(36), (38) is computed
+   (`vision.covariance.direction_covariance`), plus, for the Earth, the term of the uncertain
+   effective atmosphere thickness (sigma_d, below), and the spherical overbound of eq. (37).
+
+Residual thresholds (003 §7.3 re-derived for our residual)
+----------------------------------------------------------
+003 accepts horizons with delta < 0.025 and Suns with delta < 0.5e-5, delta being eq. (28): the
+*sum* over the m edge points of squared distances along x_p on the z = f plane, with f = 1
+(normalised coordinates; with f in pixels the 0.025 would be below the quantisation noise of a
+single pixel). Our residual is the *mean* squared angular distance [rad^2]. A plane distance
+dx at off-axis angle theta is an angle of about dx cos^2(theta); for 003's horizons (m ~ 2000
+pixels spanning the 1920 px width, theta ~ 30-45 deg, cos^-4 ~ 2-4) delta < 0.025 means
+mean(angle^2) < 0.025 / 2000 / 3 ~ 4e-6 rad^2 (2 mrad RMS, ~2.2 px at f = 1110 px). For the Sun
+(a saturated, blooming disc, m ~ 100 pixels near the axis) delta < 0.5e-5 means
+mean(angle^2) < 5e-8 rad^2 (0.22 mrad RMS, 0.25 px). The defaults (`scenarios/library/vision/
+default.toml`) start from these figures and were checked on rendered frames (docs/vision.md).
+
+Covariance terms
+----------------
+- Pixel noise, 003 eqs. (33)-(36) (Earth R = 1 px^2, L = 300 px) and (38) (Sun R = 9 px^2).
+- Effective atmosphere thickness (Earth): the apparent horizon is where the limb's brightness
+  crosses the threshold, at a tangent height d that varies with exposure and illumination
+  (003 §4, 004 §3.4.3). With the *constrained* unit-norm fit a wrong d is a wrong alpha, and on
+  a partial arc a wrong alpha tilts e towards the arc (nearly 1:1 for a short arc), so
+  ``P_c += sigma_d^2 g g^T`` with ``g = de/dd`` (by a second fit at d + 1 km). 003 §4 found the
+  estimate insensitive to d because its linear fit (eq. (24)) does not use alpha at all (the
+  direction of lstsq(H, cos(alpha) 1) is independent of alpha; see `vision.nadir`); that
+  estimator is ill-conditioned on partial arcs, which is why the constrained fit is used.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vision.binarize import BinarizeConfig
+from vision.borders import SearchConfig, search_line_spacing
+from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
+from vision.candidates import Candidate, Detection, DetectionConfig, detect
+from vision.covariance import direction_covariance, tangent_basis
+from vision.mask import PayloadMask
+from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
+                          direction_and_radius, earth_side_check, mirrored_direction, nadir_from_horizon)
+from vision.oblate import LimbModel, ellipsoid_model, sphere_model
+from vision.ransac import pixel_angle, ransac_cone
+
+__all__ = ["TargetConfig", "VisionConfig", "FramePrior", "VectorRecord", "CandidateResult",
+           "TargetResult", "FrameResult", "process_frame", "conic_polyline", "default_config",
+           "TARGETS"]
+
+TARGETS = ("earth", "sun", "moon")
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """Processing of one target (Earth, Sun or Moon).
+
+    Attributes
+    ----------
+    enabled : process this target.
+    detection : threshold, brightness gate, edge search, minimum candidate length
+        (`vision.candidates.DetectionConfig`).
+    min_pixels : fewest inlier pixels for a vector.
+    max_candidates : candidates scored (the longest first).
+    score_rays : pixels per candidate used for the cheap RANSAC scoring (spread along the edge).
+    ransac_threshold_px : RANSAC inlier distance to the cone [px] (converted per ray to an angle).
+    ransac_max_hypotheses, ransac_confidence : RANSAC budget (000 §2.3, adaptive stop).
+    min_inlier_fraction : fewest RANSAC inliers as a fraction of the scored pixels.
+    max_residual : acceptance, mean squared angular distance of the inliers from the cone [rad^2]
+        (003 §7.3 re-derived, module docstring).
+    R_px2, L_px : pixel-noise variance [px^2] and correlation length [px] (003 eqs. (36), (38)).
+    atmosphere_m : effective atmosphere thickness d [m] (003 eq. (5)); Earth only.
+    atmosphere_sigma_m : its 1-sigma uncertainty [m], added to the covariance; Earth only.
+    alpha_min_deg, alpha_max_deg : accepted apparent radius of the Sun/Moon (glare included).
+    side_check_px : step [px] from the edge to the pixels of the mirrored-nadir test (002).
+    side_check_min : fraction of those pixels that must be on their expected side.
+    side_check_rays : edge pixels probed by that test.
+    gate_deg : Sun/Moon: largest angle from the predicted direction (`FramePrior.sun_c`,
+        ``moon_c``) when one is given; covers attitude-prior and mounting errors of a few degrees.
+    fit_rays : most pixels of the winning edge used for the final fit and covariance (spread
+        along it; the correlation length is scaled with the step, so the covariance of the
+        correlated noise (003 eq. (34)) is that of the full edge, module docstring).
+    direct_outlier_fraction : a candidate is first fitted directly (all scored pixels); when at
+        most this fraction is outside the RANSAC threshold the direct fit (refitted on its inliers)
+        stands and RANSAC is skipped (most horizons and Suns: the cost of RANSAC is only paid on
+        disturbed edges).
+    curvature_tol_deg : pre-filter before any fit: at least one circle through three pixels spread
+        along the edge must have an angular radius within this of alpha (Earth) or below
+        ``alpha_max_deg`` plus this (Sun/Moon); the Sun's glare halo or a cloud bank does not
+        (1 px of edge noise moves the radius of a third of a 1900 px horizon by ~2 deg).
+    compete_fraction : candidates are scored longest first; once one is accepted, candidates
+        shorter than this fraction of it are not scored (one Earth, one Sun: a much shorter edge
+        cannot be the limb of the body whose limb was already found; it saves the RANSAC runs on
+        cloud and glare edges).
+    edge_offset_px : distance from the centres of the followed (white) border pixels to the
+        brightness edge, which lies between them and their dark neighbours: half a pixel. The
+        Earth cone is shrunk by this angle (without it the nadir is biased by ~0.03 deg on
+        rendered frames); the Sun/Moon radius absorbs it.
+    """
+
+    enabled: bool = True
+    detection: DetectionConfig = DetectionConfig()
+    min_pixels: int = 50
+    max_candidates: int = 6
+    score_rays: int = 160
+    ransac_threshold_px: float = 2.0
+    ransac_max_hypotheses: int = 200
+    ransac_confidence: float = 0.999
+    min_inlier_fraction: float = 0.6
+    max_residual: float = 4e-6
+    R_px2: float = 1.0
+    L_px: float = 300.0
+    atmosphere_m: float = 0.0
+    atmosphere_sigma_m: float = 0.0
+    alpha_min_deg: float = 0.2
+    alpha_max_deg: float = 5.0
+    side_check_px: float = 3.0
+    side_check_min: float = 0.8
+    side_check_rays: int = 24
+    gate_deg: float = 10.0
+    fit_rays: int = 512
+    edge_offset_px: float = 0.5
+    direct_outlier_fraction: float = 0.05
+    curvature_tol_deg: float = 10.0
+    compete_fraction: float = 0.5
+
+    def __post_init__(self):
+        def bad(name, expected):
+            raise ValueError(f"TargetConfig.{name} = {getattr(self, name)!r}; expected {expected}")
+
+        for name in ("min_pixels", "max_candidates", "score_rays", "ransac_max_hypotheses",
+                     "side_check_rays", "fit_rays"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                bad(name, "an integer >= 1")
+        if self.score_rays < 8:
+            bad("score_rays", ">= 8 pixels")
+        for name in ("ransac_threshold_px", "max_residual", "side_check_px", "alpha_max_deg", "gate_deg",
+                     "curvature_tol_deg"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                bad(name, "a finite number > 0")
+        for name in ("R_px2", "atmosphere_sigma_m", "alpha_min_deg"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                bad(name, "a finite number >= 0")
+        if not self.L_px >= 1.0:
+            bad("L_px", ">= 1 px (003 eq. (35))")
+        if not 0.0 < self.ransac_confidence < 1.0:
+            bad("ransac_confidence", "in (0, 1)")
+        for name in ("min_inlier_fraction", "side_check_min", "direct_outlier_fraction", "compete_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                bad(name, "a fraction in [0, 1]")
+        if not self.alpha_min_deg < self.alpha_max_deg < 90.0:
+            bad("alpha_max_deg", "alpha_min_deg < alpha_max_deg < 90")
+        if not (math.isfinite(self.atmosphere_m) and 0.0 <= self.atmosphere_m < 200e3):
+            bad("atmosphere_m", "0 <= d < 200 km")
+
+
+@dataclass(frozen=True)
+class VisionConfig:
+    """Front-end configuration: one `TargetConfig` per target, the Earth-radius fallback.
+
+    ``sphere_radius_m``: radius of the substitute sphere when there is no position prior (003
+    §2.8; None = ``nav.earth.R_MEAN``, or the Gaussian radius at ``FramePrior.lat``).
+    """
+
+    earth: TargetConfig = TargetConfig()
+    sun: TargetConfig = TargetConfig()
+    moon: TargetConfig = TargetConfig(enabled=False)
+    sphere_radius_m: float | None = None
+
+    def target(self, name: str) -> TargetConfig:
+        if name not in TARGETS:
+            raise ValueError(f"target {name!r}; expected one of {TARGETS}")
+        return getattr(self, name)
+
+
+def default_config(focal_px: float = 1110.0) -> VisionConfig:
+    """Defaults for the ATEK-like cameras: the values of scenarios/library/vision/default.toml
+    (which `scenarios.vision_config` loads; tests/test_frontend.py checks they agree), kept here so
+    that `vision` needs no file I/O. ``focal_px`` sets the Sun/Moon search-line spacing."""
+    sun_spacing = search_line_spacing(focal_px, math.radians(0.5))
+    earth = TargetConfig(
+        detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
+        min_pixels=100, max_residual=4e-6, R_px2=1.0, L_px=300.0,
+        atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
+        score_rays=100, ransac_max_hypotheses=100)
+    sun = TargetConfig(
+        detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
+        min_pixels=12, max_residual=1e-6, R_px2=9.0, L_px=300.0, alpha_min_deg=0.2,
+        alpha_max_deg=4.0, ransac_threshold_px=2.0, min_inlier_fraction=0.5, score_rays=100,
+        ransac_max_hypotheses=100)
+    moon = TargetConfig(
+        enabled=False,
+        detection=DetectionConfig(BinarizeConfig(threshold=120.0), SearchConfig(line_spacing_px=sun_spacing), 12),
+        min_pixels=12, max_residual=1e-6, R_px2=9.0, L_px=300.0, alpha_min_deg=0.2,
+        alpha_max_deg=1.0, min_inlier_fraction=0.5)
+    return VisionConfig(earth=earth, sun=sun, moon=moon)
+
+
+@dataclass(frozen=True)
+class FramePrior:
+    """Prior knowledge for one frame: position ``x_e`` [m] (GPS/INS) and camera attitude ``R_ec``
+    (camera -> e) enable the ellipsoid model (`vision.oblate.ellipsoid_model`); ``lat`` [rad]
+    alone selects the Gaussian radius of curvature for the spherical model. ``sun_c``, ``moon_c``:
+    predicted unit directions in the camera frame (ephemeris + attitude prior, e.g.
+    ``R_ec.T @ nav.ephemeris.sun_direction_e(t, x_e)``): Sun/Moon candidates further than
+    ``TargetConfig.gate_deg`` from them are rejected (lens-flare ghosts, glints; 004 §3.4)."""
+
+    x_e: np.ndarray | None = None
+    R_ec: np.ndarray | None = None
+    lat: float | None = None
+    sun_c: np.ndarray | None = None
+    moon_c: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class VectorRecord:
+    """One direction vector (the DirectionVector log message, docs/log-format.md).
+
+    e_c : unit vector in the camera frame (Earth: geocentric nadir -x_e/|x_e| with the ellipsoid
+        model, 003 eq. (39); the substitute-sphere centre with the spherical model).
+    P_c : full 3x3 covariance (003 eq. (33) + atmosphere term); P_overbound : eq. (37).
+    residual : mean squared angular residual of the inliers [rad^2].
+    pixel_count : pixels of the winning edge candidate; inlier_count : its inliers (counted on the
+        up to ``fit_rays`` pixels used for the final fit, scaled to the whole edge).
+    conic_type : "ellipse" / "hyperbola" of the fitted cone in the image (003 Table 1).
+    alpha : cone half-angle [rad] (Earth: in the fit frame of the limb model; Sun/Moon: estimated).
+    model : "ellipsoid", "sphere" (Earth) or "" (Sun/Moon).
+    """
+
+    t_ns: int
+    camera: int
+    target: str
+    e_c: np.ndarray
+    P_c: np.ndarray
+    P_overbound: np.ndarray
+    residual: float
+    pixel_count: int
+    inlier_count: int
+    conic_type: str
+    alpha: float
+    model: str = ""
+
+    @property
+    def sigma_deg(self) -> float:
+        """1-sigma angle of the overbound [deg]."""
+        return math.degrees(math.sqrt(self.P_overbound[0, 0]))
+
+
+@dataclass
+class CandidateResult:
+    """Outcome of one candidate: fit (None if it failed early), residual, reason ("" = accepted)."""
+
+    index: int
+    n_pixels: int
+    fit: ConeFit | None = None
+    residual: float = math.inf
+    inliers: int = 0
+    reason: str = ""
+    mirrored: bool = False
+
+
+@dataclass
+class TargetResult:
+    """Everything about one target in one frame, for records and annotation."""
+
+    target: str
+    detection: Detection | None
+    candidates: list = field(default_factory=list)
+    winner: int | None = None
+    points: np.ndarray | None = None     # winner's pixels (m, 2)
+    inlier_mask: np.ndarray | None = None
+    record: VectorRecord | None = None
+    reason: str = ""
+    baseline_e_c: np.ndarray | None = None   # general conic fit (vision.conic) on the winner
+    baseline_reason: str = ""
+
+
+@dataclass
+class FrameResult:
+    """`process_frame` output: the vector records, a reason per target without a vector, the
+    per-target details and the stage timings [s]."""
+
+    records: list
+    reasons: dict
+    targets: dict
+    timings: dict
+    model: str
+
+    def record(self, target: str) -> VectorRecord | None:
+        for r in self.records:
+            if r.target == target:
+                return r
+        return None
+
+
+# -------------------------------------------------------------------------------------------------
+# helpers
+
+
+def _subsample(m: int, k: int) -> np.ndarray:
+    """At most k indices spread evenly over 0..m-1 (edge order kept)."""
+    if m <= k:
+        return np.arange(m)
+    return np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))
+
+
+def conic_polyline(camera: FisheyeCamera, e_c: np.ndarray, alpha: float, n: int = 720,
+                   model: LimbModel | None = None) -> np.ndarray:
+    """Pixels (k, 2) of the cone (e, alpha) projected through the distorted camera model (the
+    fitted conic drawn in distorted pixel space, 003 figs. 15, 27); NaN where a ray is beyond the
+    lens's range or behind the camera. With ``model`` the cone is taken in its fit frame
+    (e_c the fit-frame direction) and mapped back into the camera."""
+    e = np.asarray(e_c, float)
+    u = tangent_basis(e)
+    psi = np.linspace(0.0, 2 * math.pi, n)
+    rays = math.cos(alpha) * e + math.sin(alpha) * (np.cos(psi)[:, None] * u[:, 0] + np.sin(psi)[:, None] * u[:, 1])
+    if model is not None and model.kind != "sphere":
+        rays = rays @ model.M_inv.T
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uv = project(camera, rays)
+    return uv
+
+
+def _in_image(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return (np.isfinite(uv).all(axis=-1) & (uv[..., 0] >= -0.5) & (uv[..., 0] <= camera.width - 0.5)
+                & (uv[..., 1] >= -0.5) & (uv[..., 1] <= camera.height - 0.5))
+
+
+def _brightness_at(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Mean-channel brightness at the nearest pixels (uv inside the image)."""
+    iu = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, image.shape[1] - 1)
+    iv = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, image.shape[0] - 1)
+    px = image[iv, iu]
+    return px.reshape(px.shape[0], -1).mean(axis=1)
+
+
+_PIXEL_ANGLE_CACHE: dict = {}
+
+
+def _pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
+    """`vision.ransac.pixel_angle` through a per-camera table over the distorted radius (the exact
+    function is evaluated once per camera on 256 radii; linear interpolation between them)."""
+    key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.k))
+    tab = _PIXEL_ANGLE_CACHE.get(key)
+    if tab is None:
+        corners = np.array([[-0.5, -0.5], [camera.width - 0.5, camera.height - 0.5],
+                            [-0.5, camera.height - 0.5], [camera.width - 0.5, -0.5]])
+        rmax = float(np.max(np.hypot((corners[:, 0] - camera.cx) / camera.fx,
+                                     (corners[:, 1] - camera.cy) / camera.fy)))
+        rmax = min(rmax, camera.max_radius) if math.isfinite(camera.max_radius) else rmax
+        q = np.linspace(0.0, rmax, 256)
+        uvq = np.stack([camera.cx + q * camera.fx, np.full_like(q, camera.cy)], axis=-1)
+        tab = (q, pixel_angle(camera, uvq))
+        _PIXEL_ANGLE_CACHE[key] = tab
+    q = np.hypot((uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy)
+    return np.interp(q, tab[0], tab[1])
+
+
+def _side_score(image, camera, mask, threshold, rays_c, uv, e_c, alpha_c_space, step_px, n_probe):
+    """Mirrored-nadir test (002 §3): step ``n_probe`` edge rays towards / away from e by
+    ``step_px`` pixels, look at the image there, and check with `earth_side_check` that the bright
+    pixels are inside the cone (body) and the dark ones outside (space). Returns the agreeing
+    fraction (NaN if no usable pixel)."""
+    sel = _subsample(rays_c.shape[0], n_probe)
+    rays_c, uv = rays_c[sel], uv[sel]
+    e = e_c / np.linalg.norm(e_c)
+    t = e[None, :] - (rays_c @ e)[:, None] * rays_c          # towards e, tangent at each ray
+    tn = np.linalg.norm(t, axis=1)
+    ok = tn > 1e-9
+    if not np.any(ok):
+        return math.nan
+    rays_c, uv, t, tn = rays_c[ok], uv[ok], t[ok], tn[ok]
+    t = t / tn[:, None]
+    ang = (step_px * _pixel_angle(camera, uv))[:, None]
+    ca, sa = np.cos(ang), np.sin(ang)
+    probe = np.concatenate([ca * rays_c + sa * t, ca * rays_c - sa * t])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        puv = project(camera, probe)
+    use = _in_image(camera, puv)
+    if mask is not None and mask.has_mask and np.any(use):
+        iu = np.clip(np.rint(puv[use, 0]).astype(np.int64), 0, camera.width - 1)
+        iv = np.clip(np.rint(puv[use, 1]).astype(np.int64), 0, camera.height - 1)
+        sub = np.flatnonzero(use)
+        use[sub[mask.mask[iv, iu]]] = False
+    if not np.any(use):
+        return math.nan
+    b = _brightness_at(image, puv[use])
+    bright = b >= threshold
+    pr = probe[use]
+    body = pr[bright] if np.any(bright) else None
+    space = pr[~bright] if np.any(~bright) else None
+    return earth_side_check(e, alpha_c_space, body, space)
+
+
+def _triple_radii(H: np.ndarray, n_triples: int = 6) -> np.ndarray:
+    """Angular radii [rad] (<= pi/2) of the circles on the unit sphere through triples of rays
+    spread along an ordered edge: the full span (first, middle, last) and ``n_triples - 1`` triples
+    spanning a third of it. A plane through three unit rays cuts the sphere in a circle of angular
+    radius rho with cos(rho) = distance of the plane from the origin."""
+    m = H.shape[0]
+    if m < 9:
+        return np.zeros(0)
+    s = m // 3
+    starts = np.linspace(0, m - 1 - 2 * s, n_triples - 1).round().astype(np.int64)
+    i = np.concatenate([[0], starts])
+    j = np.concatenate([[m // 2], starts + s])
+    k = np.concatenate([[m - 1], starts + 2 * s])
+    p1, p2, p3 = H[i], H[j], H[k]
+    w = np.cross(p2 - p1, p3 - p1)
+    wn = np.linalg.norm(w, axis=1)
+    good = wn > 1e-15
+    c = np.abs(np.einsum("ij,ij->i", w[good], p1[good])) / wn[good]
+    return np.arccos(np.clip(c, 0.0, 1.0))
+
+
+def _disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16) -> str:
+    """Sun/Moon disc test: the ring at alpha/2 about the fitted centre must lie in the image
+    (at least 3/4 of its points, outside the payload mask) and be bright throughout, and at least
+    3/4 of the ring at alpha + step_px pixels must be dark. Rejects short bright arcs (a saturated
+    limb or glint at the image corner) that a small circle fits. Returns "" or the reason."""
+    T = tangent_basis(e_c)
+    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    ring = np.cos(psi)[:, None] * T[:, 0] + np.sin(psi)[:, None] * T[:, 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uv_c = project(camera, e_c)
+    pa = float(_pixel_angle(camera, uv_c[None, :])[0]) if np.all(np.isfinite(uv_c)) else 1.0 / camera.fx
+    out = []
+    for ang in (0.5 * alpha, alpha + step_px * pa):
+        rays = math.cos(ang) * e_c + math.sin(ang) * ring
+        with np.errstate(invalid="ignore", divide="ignore"):
+            uv = project(camera, rays)
+        use = _in_image(camera, uv)
+        if mask is not None and mask.has_mask and np.any(use):
+            sub = np.flatnonzero(use)
+            iu = np.clip(np.rint(uv[sub, 0]).astype(np.int64), 0, camera.width - 1)
+            iv = np.clip(np.rint(uv[sub, 1]).astype(np.int64), 0, camera.height - 1)
+            use[sub[mask.mask[iv, iu]]] = False
+        out.append((use, _brightness_at(image, uv[use]) if np.any(use) else np.zeros(0)))
+    (u_in, b_in), (u_out, b_out) = out
+    if u_in.sum() < 0.75 * n:
+        return f"disc centre too close to the image edge or mask ({int(u_in.sum())}/{n} inner probes visible)"
+    if np.any(b_in < threshold):
+        return f"disc not bright inside ({int(np.sum(b_in < threshold))}/{b_in.size} inner probes below threshold)"
+    if b_out.size and np.mean(b_out < threshold) < 0.75:
+        return f"bright around the disc ({int(np.sum(b_out >= threshold))}/{b_out.size} outer probes above threshold)"
+    return ""
+
+
+def _refine_local(H: np.ndarray, e0: np.ndarray, c: float, iters: int = 8) -> np.ndarray:
+    """Local minimum of |H e - c 1|^2 on |e| = 1 near e0 (Gauss-Newton in the tangent plane), for
+    the mirrored-nadir alternative (the global minimum is `constrained_cone_fit`)."""
+    e = e0 / np.linalg.norm(e0)
+    for _ in range(iters):
+        T = tangent_basis(e)
+        A = H @ T
+        r = H @ e - c
+        dx = -np.linalg.lstsq(A, r, rcond=None)[0]
+        e = e + T @ dx
+        e /= np.linalg.norm(e)
+        if np.linalg.norm(dx) < 1e-13:
+            break
+    return e
+
+
+def _fit(H: np.ndarray, alpha: float | None, e_start: np.ndarray | None = None) -> ConeFit:
+    if alpha is None:
+        return direction_and_radius(H)
+    if e_start is None:
+        return nadir_from_horizon(H, alpha)
+    e = _refine_local(H, e_start, math.cos(alpha))
+    delta, kind = conic_type(e, alpha)
+    return ConeFit(e_c=e, alpha=alpha, n=e, rhs=math.cos(alpha), discriminant=delta, conic=kind,
+                   residual=angle_residual(H, e, alpha), m=H.shape[0], method="constrained")
+
+
+def _alpha_sensitivity(H: np.ndarray, e: np.ndarray, alpha: float) -> np.ndarray:
+    """d e / d alpha of the constrained fit (linearised normal equations in the tangent plane at
+    e: x = (T^T N T)^-1 T^T H^T (c 1 - H e), c = cos(alpha), so de/dc = T (T^T N T)^-1 T^T H^T 1)."""
+    T = tangent_basis(e)
+    A = H @ T
+    dx_dc = np.linalg.solve(A.T @ A, A.T @ np.ones(H.shape[0]))
+    return (T @ dx_dc) * (-math.sin(alpha))
+
+
+# -------------------------------------------------------------------------------------------------
+# one target
+
+
+@dataclass(frozen=True)
+class _Consensus:
+    """Direct-fit stand-in for `vision.ransac.RansacResult` (fit, inliers)."""
+
+    fit: ConeFit
+    inliers: np.ndarray
+
+
+def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: TargetConfig,
+                     model: LimbModel | None, rng, predicted: np.ndarray | None = None) -> CandidateResult:
+    res = CandidateResult(index=k, n_pixels=cand.n_pixels)
+    if cand.n_pixels < tc.min_pixels:
+        res.reason = f"{cand.n_pixels} pixels < min_pixels {tc.min_pixels}"
+        return res
+    idx = _subsample(cand.n_pixels, tc.score_rays)
+    uv = cand.points[idx]
+    rays_c = unproject(camera, uv)
+    ok = np.all(np.isfinite(rays_c), axis=1)
+    if ok.sum() < max(8, min(tc.min_pixels, idx.size) // 2):
+        res.reason = "edge pixels outside the lens's valid range"
+        return res
+    uv, rays_c = uv[ok], rays_c[ok]
+    pa = _pixel_angle(camera, uv)
+    thr = tc.ransac_threshold_px * pa
+    H = rays_c if model is None else model.to_fit(rays_c)
+    alpha = None if model is None else model.alpha - tc.edge_offset_px * float(np.median(pa))
+    # curvature pre-filter: no triple of pixels spread along the edge lies on a circle of the
+    # expected angular radius -> not this body's limb (saves the RANSAC on glare/cloud edges)
+    rho = _triple_radii(H)
+    if alpha is not None:
+        ok_rho = np.abs(rho - alpha) <= math.radians(tc.curvature_tol_deg)
+    else:
+        ok_rho = rho <= math.radians(tc.alpha_max_deg + tc.curvature_tol_deg)
+    if rho.size and not np.any(ok_rho):
+        want = (f"{math.degrees(alpha):.1f}" if alpha is not None else f"<= {tc.alpha_max_deg:g}")
+        res.reason = (f"curvature: circles through pixel triples have radii "
+                      f"{math.degrees(rho.min()):.1f}-{math.degrees(rho.max()):.1f} deg, expected {want} "
+                      f"+- {tc.curvature_tol_deg:g} deg")
+        return res
+    # shortcut: a clean edge is fitted directly; RANSAC (000 §2.3) only when that fit leaves
+    # more than `direct_outlier_fraction` of the pixels outside the threshold
+    rr = None
+    try:
+        f0 = _fit(H, alpha)
+        in0 = np.abs(angle_residuals(H, f0.e_c, f0.alpha)) <= thr
+        if in0.mean() >= 1.0 - tc.direct_outlier_fraction:
+            f1 = _fit(H[in0], alpha)
+            rr = _Consensus(f1, np.abs(angle_residuals(H, f1.e_c, f1.alpha)) <= thr)
+    except ValueError:
+        rr = None
+    try:
+        if rr is None or rr.inliers.sum() < 3:
+            rr = ransac_cone(H, rng, alpha=alpha, threshold=thr, confidence=tc.ransac_confidence,
+                             max_hypotheses=tc.ransac_max_hypotheses, n_preverify=4,
+                         batch=tc.ransac_max_hypotheses,
+                             min_inliers=max(3, int(math.ceil(tc.min_inlier_fraction * H.shape[0]))))
+    except ValueError as exc:
+        res.reason = f"no cone: {exc}"
+        return res
+    fit = rr.fit
+    res.inliers = int(rr.inliers.sum())
+    res.fit = fit
+    res.residual = fit.residual
+    if alpha is None and not (math.radians(tc.alpha_min_deg) <= fit.alpha <= math.radians(tc.alpha_max_deg)):
+        res.reason = (f"apparent radius {math.degrees(fit.alpha):.3g} deg outside "
+                      f"[{tc.alpha_min_deg:g}, {tc.alpha_max_deg:g}] deg")
+        return res
+    if alpha is None and predicted is not None:
+        off = math.degrees(math.acos(max(-1.0, min(1.0, float(fit.e_c @ predicted)))))
+        if off > tc.gate_deg:
+            res.reason = f"{off:.1f} deg from the predicted direction > gate_deg {tc.gate_deg:g} (flare ghost?)"
+            return res
+    if alpha is None:
+        why = _disc_check(image, camera, mask, det.threshold, fit.e_c, fit.alpha, tc.side_check_px)
+        if why:
+            res.reason = why
+            return res
+    # mirrored-nadir test (002): the body must be bright on its side of the edge
+    inl = rr.inliers
+    e_c = fit.e_c if model is None else model.to_camera(fit.e_c)
+    alpha_c = fit.alpha if model is None else float(np.median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1))))
+    side = _side_score(image, camera, mask, det.threshold, rays_c[inl], uv[inl], e_c, alpha_c,
+                       tc.side_check_px, tc.side_check_rays)
+    if not side >= tc.side_check_min and alpha is not None:
+        alt = _fit(H[inl], alpha, mirrored_direction(fit.e_c, H[inl]))
+        e_alt = model.to_camera(alt.e_c)
+        side_alt = _side_score(image, camera, mask, det.threshold, rays_c[inl], uv[inl], e_alt, alpha_c,
+                               tc.side_check_px, tc.side_check_rays)
+        if side_alt >= tc.side_check_min and alt.residual <= tc.max_residual:
+            fit, side, res.mirrored = alt, side_alt, True
+            res.fit, res.residual = alt, alt.residual
+    if not side >= tc.side_check_min:
+        res.reason = (f"wrong side (002 mirrored nadir): {side:.2f} of the pixels beside the edge "
+                      f"agree < {tc.side_check_min:g}")
+        return res
+    if res.residual > tc.max_residual:
+        res.reason = f"residual {res.residual:.3g} rad^2 > max_residual {tc.max_residual:.3g}"
+        return res
+    # 003 §3.3 sanity check: the implied conic must pass through the image
+    poly = conic_polyline(camera, fit.e_c, fit.alpha, 90, model)
+    if not np.any(_in_image(camera, poly)):
+        res.reason = "the fitted conic does not pass through the image (003 §3.3)"
+        return res
+    return res
+
+
+def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,
+                    baseline: bool, predicted: np.ndarray | None = None) -> TargetResult:
+    t0 = time.perf_counter()
+    det = detect(image, tc.detection, mask, expected_shape=(camera.height, camera.width))
+    t1 = time.perf_counter()
+    timings[f"{name}.detect"] = t1 - t0
+    out = TargetResult(name, det)
+    if not det.candidates:
+        out.reason = f"no candidate: {det.reason}"
+        return out
+    is_earth = name == "earth"
+    cands = sorted(range(len(det.candidates)), key=lambda i: -det.candidates[i].n_pixels)[:tc.max_candidates]
+    results = []
+    accepted_len = 0
+    for i in cands:
+        n_i = det.candidates[i].n_pixels
+        if accepted_len and n_i < tc.compete_fraction * accepted_len:
+            break   # much shorter than an accepted edge: not the same body's limb (docstring)
+        r_i = _score_candidate(i, det.candidates[i], image, camera, mask, det, tc,
+                               model if is_earth else None, rng, predicted)
+        results.append(r_i)
+        if not r_i.reason:
+            accepted_len = max(accepted_len, n_i)
+    out.candidates = results
+    t2 = time.perf_counter()
+    timings[f"{name}.score"] = t2 - t1
+    good = [r for r in results if not r.reason]
+    if not good:
+        best = min(results, key=lambda r: r.residual)
+        out.reason = (f"no accepted candidate among {len(det.candidates)} "
+                      f"(best: candidate {best.index}, {best.reason})")
+        return out
+    win = min(good, key=lambda r: r.residual)
+    cand = det.candidates[win.index]
+    out.winner = win.index
+    # full processing of the winner: <= fit_rays pixels spread along the whole edge, Jacobian,
+    # inliers, refit, covariance with the correlation length scaled to the step
+    step = max(1.0, cand.n_pixels / tc.fit_rays)
+    sel = _subsample(cand.n_pixels, tc.fit_rays)
+    uv = cand.points[sel]
+    rays_c, J = unproject_jacobian(camera, uv)
+    ok = np.all(np.isfinite(rays_c), axis=1)
+    uv, rays_c, J = uv[ok], rays_c[ok], J[ok]
+    pa = _pixel_angle(camera, uv)
+    H = model.to_fit(rays_c) if is_earth else rays_c
+    fit = win.fit
+    thr = tc.ransac_threshold_px * pa
+    inl = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
+    min_used = min(tc.min_pixels, int(math.ceil(tc.min_pixels / step)))
+    if inl.sum() < max(min_used, 3):
+        out.reason = f"candidate {win.index}: {int(inl.sum())} inliers on the full edge (min_pixels {tc.min_pixels})"
+        return out
+    fit = _fit(H[inl], fit.alpha, fit.e_c if win.mirrored else None) if is_earth else direction_and_radius(H[inl])
+    if fit.residual > tc.max_residual:
+        out.reason = (f"candidate {win.index}: residual {fit.residual:.3g} rad^2 on the full edge > "
+                      f"max_residual {tc.max_residual:.3g}")
+        return out
+    t3 = time.perf_counter()
+    timings[f"{name}.refit"] = t3 - t2
+    L_eff = max(1.0, tc.L_px / step)
+    if is_earth:
+        e_c = model.to_camera(fit.e_c)
+        cov = direction_covariance(rays_c[inl], J[inl], e_c, tc.R_px2, L_eff, method="constrained")
+        P = cov.P_c
+        if tc.atmosphere_sigma_m > 0:
+            # d e / d d = d e / d alpha * d alpha / d d (module docstring), mapped into the camera
+            g_fit = _alpha_sensitivity(H[inl], fit.e_c, fit.alpha) * model.alpha_rate
+            g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
+            g /= 1e-3
+            P = P + tc.atmosphere_sigma_m**2 * np.outer(g, g)
+        conic = conic_type(e_c, float(np.median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1)))))[1]
+    else:
+        e_c = fit.e_c
+        cov = direction_covariance(rays_c[inl], J[inl], fit.n, tc.R_px2, L_eff, method="linear")
+        P = cov.P_c
+        conic = fit.conic
+    P = 0.5 * (P + P.T)
+    lam = float(np.linalg.eigvalsh(P)[-1])
+    timings[f"{name}.covariance"] = time.perf_counter() - t3
+    n_inl = int(round(int(inl.sum()) * cand.n_pixels / max(uv.shape[0], 1)))
+    out.points = uv
+    out.inlier_mask = inl
+    out.record = VectorRecord(0, 0, name, e_c, P, lam * np.eye(3), float(fit.residual), int(cand.n_pixels),
+                              min(n_inl, cand.n_pixels), conic, float(fit.alpha),
+                              model.kind if is_earth else "")
+    if baseline:
+        from vision.conic import conic_nadir_fit
+        tb = time.perf_counter()
+        try:
+            allr = unproject(camera, cand.points)
+            allr = allr[np.all(np.isfinite(allr), axis=1)]
+            e_b, _ = conic_nadir_fit(allr)
+            out.baseline_e_c = e_b
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            out.baseline_reason = str(exc)
+        timings[f"{name}.baseline_conic_fit"] = time.perf_counter() - tb
+    return out
+
+
+def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_m: float | None = None,
+                  mask: PayloadMask | None = None, prior: FramePrior | None = None,
+                  rng: np.random.Generator | None = None, t_ns: int = 0, camera_id: int = 0,
+                  baseline: bool = False) -> FrameResult:
+    """Earth-nadir, Sun and Moon vectors of one decoded frame (see the module docstring).
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) uint8 frame as decoded (distorted); its size must be the camera's.
+    camera : intrinsics (`vision.camera.FisheyeCamera`).
+    config : `VisionConfig`.
+    height_m : height above the ellipsoid [m] (the height prior of 003 eq. (5)); needed for the
+        Earth unless ``prior.x_e`` is given.
+    mask : payload mask of the camera, or None.
+    prior : `FramePrior`; with x_e and R_ec the ellipsoid model is used (`vision.oblate`), else the
+        spherical model with the local radius of curvature.
+    rng : seeded generator for RANSAC (default: seed 0, reproducible).
+    t_ns, camera_id : copied into the records.
+    baseline : also run the general conic fit (`vision.conic.conic_nadir_fit`) on the Earth winner.
+
+    Returns
+    -------
+    FrameResult; ``reasons[target]`` says why a target has no vector. Bad input (not a uint8
+    frame, wrong size, bad mask) raises ValueError.
+    """
+    from nav import earth as _earth
+
+    if not isinstance(camera, FisheyeCamera):
+        raise ValueError(f"camera: {type(camera).__name__}, expected vision.camera.FisheyeCamera")
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"image: {type(image).__name__}, expected a decoded uint8 numpy array "
+                         f"(decode bytes with cv2.imdecode first)")
+    rng = np.random.default_rng(0) if rng is None else rng
+    timings: dict[str, float] = {}
+    reasons: dict[str, str] = {}
+    targets: dict[str, TargetResult] = {}
+    records: list[VectorRecord] = []
+    model = None
+    model_kind = ""
+    if config.earth.enabled:
+        d = config.earth.atmosphere_m
+        if prior is not None and prior.x_e is not None and prior.R_ec is not None:
+            model = ellipsoid_model(prior.x_e, prior.R_ec, d)
+        else:
+            if height_m is None:
+                raise ValueError("height_m: required for the Earth (003 eq. (5)) without a position prior")
+            if not (math.isfinite(height_m) and height_m > 0):
+                raise ValueError(f"height_m = {height_m}; expected a finite height above the ellipsoid [m]")
+            if config.sphere_radius_m is not None:
+                r = config.sphere_radius_m
+            elif prior is not None and prior.lat is not None:
+                from vision.oblate import gaussian_radius
+                r = gaussian_radius(prior.lat)
+            else:
+                r = _earth.R_MEAN
+            model = sphere_model(height_m, r, d)
+        model_kind = model.kind
+    for name in TARGETS:
+        tc = config.target(name)
+        if not tc.enabled:
+            continue
+        pred = None
+        if prior is not None and name != "earth":
+            pred = prior.sun_c if name == "sun" else prior.moon_c
+            if pred is not None:
+                pred = np.asarray(pred, dtype=float)
+                if pred.shape != (3,) or not np.all(np.isfinite(pred)) or np.linalg.norm(pred) == 0:
+                    raise ValueError(f"prior.{name}_c = {pred!r}; expected a finite 3-vector")
+                pred = pred / np.linalg.norm(pred)
+        tr = _process_target(name, image, camera, mask, tc, model, rng, timings, baseline and name == "earth", pred)
+        targets[name] = tr
+        if tr.record is not None:
+            r = tr.record
+            r = VectorRecord(int(t_ns), int(camera_id), r.target, r.e_c, r.P_c, r.P_overbound, r.residual,
+                             r.pixel_count, r.inlier_count, r.conic_type, r.alpha, r.model)
+            tr.record = r
+            records.append(r)
+        else:
+            reasons[name] = tr.reason
+    timings["total"] = sum(v for k, v in timings.items() if not k.endswith("baseline_conic_fit"))
+    return FrameResult(records, reasons, targets, timings, model_kind)

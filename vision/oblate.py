@@ -1,0 +1,134 @@
+"""Limb models for the Earth-nadir fit: the spherical Earth of 003 §2.4 and the oblate (WGS-84)
+Earth of 003 §2.8 handled with the scaled-sphere transform of 000 §2.4.
+
+The cone fit (`vision.nadir.nadir_from_horizon`) assumes a sphere: the limb rays form a circular
+cone about the direction to the centre. The WGS-84 ellipsoid is not a sphere; its limb seen from
+``x_e`` is a slightly non-circular cone, and fitting a circular one biases the direction by up to
+~0.19 deg (003 §2.8, fig. 8). Two models are offered, both as a `LimbModel` that maps camera rays
+into the frame where the limb *is* a circular cone and maps the fitted direction back:
+
+- `sphere_model` (no prior; 003 §2.8): the ellipsoid is replaced by the sphere of radius ``r``
+  (the local radius of curvature, ``nav.earth.radius_of_curvature``) and the cone half-angle is
+  003 eq. (5), ``alpha = asin((r + d) / (r + H))``. The fitted direction is the centre of that
+  substitute sphere, i.e. close to the local *normal* (the direction of gravity), not the
+  geocentric direction -x_e/|x_e| of the filter's observation equation (003 eq. (39)); the
+  difference is the spherical-model error reported here.
+- `ellipsoid_model` (with a position prior x_e and an attitude prior R_ec; 000's ellipsoid model):
+  the limb of the ellipsoid inflated by the effective atmosphere thickness d, with semi-axes
+  (a + d, a + d, b + d), becomes a sphere of radius a + d under ``S = diag(1, 1, (a + d)/(b + d))``
+  (lines map to lines, tangency is preserved). In that space the limb rays
+  ``p_s = S R_ec p_c / |S R_ec p_c|`` lie exactly on the circular cone about ``-S x_e`` with
+  ``alpha_s = asin((a + d)/|S x_e|)``; the fitted ``e_s`` maps back to the geocentric direction
+  ``e_e = S^-1 e_s / |S^-1 e_s|`` (S^-1 (-S x_e) = -x_e) and into the camera with ``R_ec^T``.
+  A prior attitude error psi rotates all rays together; since S differs from the identity by
+  ``f ~ 1/298``, the output moves by ``~ f |psi|`` times the in-plane lever, i.e. the
+  correction's sensitivity to the attitude prior is second order (tests/test_oblate.py).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from nav import earth
+from vision.nadir import horizon_alpha
+
+__all__ = ["LimbModel", "sphere_model", "ellipsoid_model", "gaussian_radius", "ellipsoid_limb_rays"]
+
+
+@dataclass(frozen=True)
+class LimbModel:
+    """Where the limb is a circular cone.
+
+    Attributes
+    ----------
+    kind : "sphere" or "ellipsoid".
+    alpha : cone half-angle in the fit frame [rad].
+    M : (3, 3) linear map camera ray -> fit-frame ray (before normalisation); identity for the
+        sphere, ``S R_ec`` for the ellipsoid.
+    M_inv : its inverse (fit-frame direction -> camera direction, before normalisation).
+    radius : radius of the (substitute) sphere [m]: r for the sphere, a for the ellipsoid.
+    alpha_rate : d alpha / d d [rad/m], for the atmosphere-thickness term of the covariance.
+    """
+
+    kind: str
+    alpha: float
+    M: np.ndarray
+    M_inv: np.ndarray
+    radius: float
+    alpha_rate: float
+
+    def to_fit(self, rays_c: np.ndarray) -> np.ndarray:
+        """Camera rays (m, 3) -> unit rays in the fit frame."""
+        if self.kind == "sphere":
+            return rays_c
+        p = rays_c @ self.M.T
+        return p / np.linalg.norm(p, axis=-1, keepdims=True)
+
+    def to_camera(self, e_fit: np.ndarray) -> np.ndarray:
+        """Fitted unit direction in the fit frame -> unit direction in the camera frame."""
+        if self.kind == "sphere":
+            return e_fit
+        e = self.M_inv @ e_fit
+        return e / np.linalg.norm(e)
+
+
+def gaussian_radius(lat: float) -> float:
+    """sqrt(M N): the mean radius of curvature at geodetic latitude ``lat`` [rad] (the geometric
+    mean of the normal-section radii over all azimuths), for `sphere_model` when the viewing
+    azimuth is unknown."""
+    return float(math.sqrt(earth.radius_of_curvature(lat, 0.0) * earth.radius_of_curvature(lat, math.pi / 2)))
+
+
+def sphere_model(height_m: float, radius_m: float, atmosphere_m: float = 0.0) -> LimbModel:
+    """Spherical Earth of radius ``radius_m`` seen from ``height_m`` above it (003 eq. (5))."""
+    if not (math.isfinite(height_m) and height_m > atmosphere_m):
+        raise ValueError(f"height {height_m} m: expected a finite height above the effective "
+                         f"atmosphere thickness d = {atmosphere_m} m (003 eq. (5))")
+    a = horizon_alpha(height_m, radius_m, atmosphere_m)
+    rate = 1.0 / ((radius_m + height_m) * math.cos(a))
+    I = np.eye(3)
+    return LimbModel("sphere", a, I, I, float(radius_m), rate)
+
+
+def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0) -> LimbModel:
+    """WGS-84 ellipsoid inflated by ``atmosphere_m`` seen from ``x_e`` with attitude prior
+    ``R_ec`` (camera -> e), see the module docstring."""
+    x = np.asarray(x_e, dtype=float)
+    R = np.asarray(R_ec, dtype=float)
+    if x.shape != (3,) or R.shape != (3, 3) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(R))):
+        raise ValueError(f"ellipsoid_model: x_e {x.shape}, R_ec {R.shape}; expected finite (3,), (3, 3)")
+    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
+    s = np.array([1.0, 1.0, a / b])
+    xs = float(np.linalg.norm(s * x))
+    if not xs > a:
+        raise ValueError(f"ellipsoid_model: position {x} m is not above the ellipsoid + "
+                         f"{atmosphere_m} m atmosphere")
+    alpha = math.asin(a / xs)
+    M = s[:, None] * R            # S R_ec
+    M_inv = R.T / s[None, :]      # R_ec^T S^-1
+    rate = 1.0 / (xs * math.cos(alpha))
+    return LimbModel("ellipsoid", alpha, M, M_inv, float(a), rate)
+
+
+def ellipsoid_limb_rays(x_e: np.ndarray, R_ec: np.ndarray, n: int = 720,
+                        atmosphere_m: float = 0.0) -> np.ndarray:
+    """Exact limb rays (n, 3) in the camera frame of the WGS-84 ellipsoid (+ d) seen from x_e:
+    the circle of tangency in the scaled frame mapped back (an independent construction for the
+    tests: the rays are tangent to the ellipsoid, which the tests verify with
+    `scenarios.render.ray_ellipsoid`)."""
+    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
+    s = np.array([1.0, 1.0, a / b])
+    xs = s * np.asarray(x_e, dtype=float)
+    r = np.linalg.norm(xs)
+    e = -xs / r
+    alpha = math.asin(a / r)
+    u = np.cross(e, [0.0, 0.0, 1.0]) if abs(e[2]) < 0.9 else np.cross(e, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(e, u)
+    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    p_s = math.cos(alpha) * e + math.sin(alpha) * (np.cos(psi)[:, None] * u + np.sin(psi)[:, None] * v)
+    p_e = p_s / s
+    p_e /= np.linalg.norm(p_e, axis=1, keepdims=True)
+    return p_e @ np.asarray(R_ec, dtype=float)  # rows: R_ec^T p_e
