@@ -3,7 +3,7 @@
 Order (groups switched ``"off"`` in the tuning are left out)::
 
     dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w | psi_c[k] for each camera k
-                    | zeta[k, target] for each camera k and target in tuning.targets
+                    | dt_c[k] for each camera k | zeta[k, target] for each camera k and target
 
 * ``dx_e, dv_e`` true minus estimated position and velocity in e [m, m/s];
 * ``psi`` attitude error in e, from the estimated to the true attitude (CONVENTIONS "Rotations");
@@ -11,7 +11,11 @@ Order (groups switched ``"off"`` in the tuning are left out)::
 * ``s_f, s_w`` residual scale factors, ``m_f, m_w`` residual small-angle misalignments
   (sensitivities in :mod:`nav.imu_errors`);
 * ``psi_c`` camera misalignment in b, ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50));
+* ``dt_c`` camera clock offset error [s], true minus estimated offset (one state per camera,
+  :mod:`nav.clock_offset`; a constant: identity transition);
 * ``zeta`` Gauss-Markov vector errors of 003 eqs. (41)-(45), in the camera frame.
+
+Every group has 3 components except ``dt_c`` (1).
 
 The navigation block (dx, dv, psi) is always estimated; every other group is estimated or
 considered (Schmidt-Kalman) as the tuning says.
@@ -80,6 +84,9 @@ class StateLayout:
     def cam_name(self, camera: int) -> str:
         return f"psi_c_{camera}"
 
+    def clock_name(self, camera: int) -> str:
+        return f"dt_c_{camera}"
+
 
 def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
     """State layout for ``n_cameras`` cameras (0 allowed: GPS/INS only)."""
@@ -88,10 +95,10 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
     groups = []
     i = 0
 
-    def add(name, est, sigma):
+    def add(name, est, sigma, size=3):
         nonlocal i
-        groups.append(Group(name, slice(i, i + 3), est, float(sigma)))
-        i += 3
+        groups.append(Group(name, slice(i, i + size), est, float(sigma)))
+        i += size
 
     add("dx", True, tuning.init_pos_sigma)
     add("dv", True, tuning.init_vel_sigma)
@@ -104,6 +111,9 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
         if tuning.camera_misalignment.on:
             for k in range(n_cameras):
                 add(f"psi_c_{k}", tuning.camera_misalignment.estimated, tuning.camera_misalignment.sigma)
+        if tuning.camera_clock_offset.on:
+            for k in range(n_cameras):
+                add(f"dt_c_{k}", tuning.camera_clock_offset.estimated, tuning.camera_clock_offset.sigma, size=1)
         if tuning.vector_gm_mode != "off":
             for k in range(n_cameras):
                 for t in tuning.targets:

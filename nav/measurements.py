@@ -76,6 +76,31 @@ def vector_jacobians(target: str, x_e, u_e, R_eb, R_bc, target_pos_e=None):
     return H_dx, H_psi, H_psic
 
 
+def vector_rate(target: str, x_e, v_e, u_e, R_eb, R_bc, w_eb_b, target_pos_e=None) -> np.ndarray:
+    """Rate of change of the predicted camera-frame vector ``e_c = R_bc^T R_eb^T u_e`` [1/s]::
+
+        de_c/dt = -[omega_c x] e_c + R_bc^T R_eb^T du_e/dt,    omega_c = R_bc^T omega_eb_b
+
+    with ``dR_eb/dt = R_eb [omega_eb_b x]`` and ``du_e/dt = (I - u u^T) d'/|d|`` for the line of
+    sight ``d`` to the target: ``d' = -v_e`` for the nadir (``d = -x_e``), ``d' = -[omega_ie x] X - v_e``
+    for the Sun / Moon at X (fixed in inertial space, so moving in e with the Earth's rotation).
+    The measurement Jacobian of a camera clock offset error is ``-de_c/dt`` (:mod:`nav.navigator`).
+    """
+    from nav.earth import OMEGA_IE_E
+    R_ce = R_bc.T @ R_eb.T
+    e_c = R_ce @ u_e
+    w_c = R_bc.T @ np.asarray(w_eb_b, float)
+    x = np.asarray(x_e, float)
+    v = np.zeros(3) if v_e is None else np.asarray(v_e, float)
+    if target == "hor":
+        d, dd = -x, -v
+    else:
+        X = np.asarray(target_pos_e, float)
+        d, dd = X - x, -np.cross(OMEGA_IE_E, X) - v
+    du = (dd - u_e * (u_e @ dd)) / np.linalg.norm(d)
+    return -np.cross(w_c, e_c) + R_ce @ du
+
+
 def innovation(measured, predicted) -> np.ndarray:
     """003 eq. (40): measured minus predicted."""
     return np.asarray(measured, float) - np.asarray(predicted, float)

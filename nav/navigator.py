@@ -33,7 +33,10 @@ Processing
   from :func:`nav.measurements.vector_covariance_problem`.
 * After every accepted update the estimated errors are fed back (position, velocity, attitude,
   the estimated IMU errors into the calibration, camera misalignments into the mountings, 003
-  eq. (50)) and the error state is reset to zero.
+  eq. (50), camera clock offsets into the stamp correction) and the error state is reset to zero.
+* Camera clocks (issue 9, 003 §7.3): ``run(..., clock_offset_s=...)`` corrects each camera's
+  stamps by its offset; with the tuning's ``camera_clock_offset`` state on, the filter refines the
+  offsets (one constant state ``dt_c`` per camera) and reports them in ``NavResult.clock_offset``.
 
 Outputs (:class:`NavResult`): the solution at every IMU sample (post-correction at update epochs),
 the covariance diagonal at every covariance epoch and the full covariance at measurement epochs,
@@ -44,6 +47,7 @@ vector share a time stamp, and the reject counts by reason.
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -57,7 +61,7 @@ from nav.gauss_markov import gm_transition
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
 from nav.measurements import (gps_position, gps_velocity, predict_vector,
                               tangent_basis, target_direction_e, vector_covariance_problem,
-                              vector_jacobians)
+                              vector_jacobians, vector_rate)
 from nav.rotation import angle_between, matrix_to_quat, matrix_to_rotvec, quat_to_matrix, triad
 from nav.schmidt import chi2_gate, schmidt_update, symmetrize
 from nav.tuning import Tuning
@@ -155,6 +159,11 @@ class NavResult:
     calibration: ImuCalibration
     R_bc: np.ndarray          #: final mounting estimates
     store: SmootherStore | None
+    #: (M, n_cam) camera clock offset in use at misalignment_t_ns [s] (camera clock minus IMU time:
+    #: the initial ``clock_offset_s`` plus the filter's estimate when the dt_c state is modelled)
+    clock_offset: np.ndarray | None = None
+    #: (M, n_cam) its 1-sigma [s] (0 where the offset is not a filter state)
+    clock_offset_sigma: np.ndarray | None = None
 
     def nis(self, kind: str) -> np.ndarray:
         return np.array([i.nis for i in self.innovations if i.kind == kind and i.accepted])
@@ -224,7 +233,8 @@ def _events(gps: GpsData | None, vec: VectorData | None, rejected: Counter):
 
 def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None = None,
         vectors: VectorData | None = None, R_bc=(), lever_b=(0.0, 0.0, 0.0),
-        store_for_smoother: bool = True, unaided: bool = True) -> NavResult:
+        store_for_smoother: bool = True, unaided: bool = True, clock_offset_s=None,
+        clock_offset_sigma_s=None) -> NavResult:
     """Run the integrated navigation from ``init.t_ns`` to the last IMU sample.
 
     Parameters
@@ -241,6 +251,17 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
     store_for_smoother : bool
         Keep what :func:`nav.smoother.rts_smooth` needs (2 full covariances and a transition per
         covariance epoch: about 50 KB per epoch for 45 states).
+    clock_offset_s : sequence of float, optional
+        Per camera, the offset of its clock against the IMU time base [s] (a frame taken at IMU
+        time t is stamped t + offset; e.g. from :func:`nav.clock_offset.estimate_camera_offsets`).
+        Vector stamps are corrected by it before anything else. With the tuning's
+        ``camera_clock_offset`` state on, the filter refines it: the state ``dt_c`` (true minus
+        estimated offset) enters every vector of that camera through ``H = -de_c/dt``
+        (:func:`nav.measurements.vector_rate`) and its estimate is fed back into the stamp
+        correction (later vectors are predicted at ``stamp - offset``).
+    clock_offset_sigma_s : sequence of float, optional
+        Per camera, the initial 1-sigma of the offset [s] (e.g. the estimate's ``sigma_s``);
+        default the tuning's ``camera_clock_offset`` sigma.
     """
     rejected: Counter = Counter()
     t_all, f_all, w_all = _clean_imu(imu, tuning, rejected)
@@ -262,6 +283,25 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
     P = layout.initial_covariance() if init.P0 is None else symmetrize(np.asarray(init.P0, float))
     if P.shape != (n, n):
         raise ValueError(f"init.P0: expected ({n}, {n}) for this layout, got {P.shape}")
+    clk0 = np.zeros(n_cam) if clock_offset_s is None else np.asarray(clock_offset_s, float).reshape(-1)
+    if clk0.shape != (n_cam,) or not np.all(np.isfinite(clk0)):
+        raise ValueError(f"clock_offset_s: expected {n_cam} finite offsets [s] (one per camera), got {clock_offset_s!r}")
+    clk_names = [layout.clock_name(c) if layout.has(layout.clock_name(c)) else None for c in range(n_cam)]
+    if clock_offset_sigma_s is not None:
+        sig0 = np.asarray(clock_offset_sigma_s, float).reshape(-1)
+        if sig0.shape != (n_cam,) or not np.all(np.isfinite(sig0)) or np.any(sig0 <= 0):
+            raise ValueError(f"clock_offset_sigma_s: expected {n_cam} positive sigmas [s], got {clock_offset_sigma_s!r}")
+        for c, nm in enumerate(clk_names):
+            if nm is not None and init.P0 is None:
+                P[layout[nm], layout[nm]] = sig0[c] ** 2
+    clk_hat = np.zeros(n_cam)   # filter estimate of the offset beyond clk0 (fed back)
+    if vectors is not None and np.any(clk0 != 0):
+        cam_idx = np.asarray(vectors.camera)
+        known = (cam_idx >= 0) & (cam_idx < n_cam)
+        shift = np.zeros(cam_idx.size, dtype=np.int64)
+        shift[known] = np.round(clk0[cam_idx[known].astype(int)] * NS).astype(np.int64)
+        vectors = VectorData(np.asarray(vectors.t_ns, dtype=np.int64) - shift, vectors.camera, vectors.target,
+                             vectors.e_c, vectors.P_c)
     tc = tuning.correlation_time_s
     zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
     P_c_latest = {g.name: np.eye(3) * tuning.gm_default_sigma ** 2 for g in zeta_groups}
@@ -313,7 +353,7 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
 
     cov_idx = [0]; P_diag = [np.diag(P).copy()]
     meas_t, P_full = [], []
-    mis_t, mis, mis_sig = [], [], []
+    mis_t, mis, mis_sig, clk_t, clk_sig = [], [], [], [], []
     tri_t, tri_in = [], []
     innovations = []
     store = SmootherStore() if store_for_smoother else None
@@ -340,6 +380,8 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         while e_ptr < len(events) and ev_idx[e_ptr] == k:
             t_m, kind, j = events[e_ptr]
             dt_m = (t_m - t_ns[k]) / NS
+            if kind == 1 and clk_names and 0 <= int(vectors.camera[j]) < n_cam:
+                dt_m -= clk_hat[int(vectors.camera[j])]
             e_ptr += 1
             R_eb = ins.quat_to_R(q)
             kk = min(k + 1, N - 1) if avg else k  # the sample covering (t_k, t_m]
@@ -356,7 +398,7 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
                 new_c = _gps_rows(gps, j, x_m, v_m, R_m, w_eb, lever, layout)
             else:
                 new_c, P = _vector_rows(vectors, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest,
-                                        last_seen, zeta_hat, tuning, t_m, group_vecs)
+                                        last_seen, zeta_hat, tuning, t_m, group_vecs, v_m, w_eb)
             cands.extend((t_m,) + c for c in new_c)
         if cands:
             rows = []
@@ -394,7 +436,7 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
                     P = res.P
                     upd_dx = res.dx
                     updated = True
-                    x, v, q, A = _feedback(res.dx, layout, x, v, q, cal, R_bc_est, zeta_hat)
+                    x, v, q, A = _feedback(res.dx, layout, x, v, q, cal, R_bc_est, zeta_hat, clk_hat)
                     if A:
                         if affine_estimated:
                             A_f, b_f, A_w, b_w = cal.matrices()
@@ -416,6 +458,9 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
                 mis.append([R_bc_est[c] @ R_bc_nom[c].T for c in range(n_cam)])
                 mis_sig.append([np.sqrt(np.diag(P)[layout[f"psi_c_{c}"]]) if layout.has(f"psi_c_{c}")
                                 else np.zeros(3) for c in range(n_cam)])
+                clk_t.append(clk0 + clk_hat)
+                clk_sig.append([math.sqrt(P[layout[nm], layout[nm]][0, 0]) if nm is not None else 0.0
+                                for nm in clk_names])
             if store is not None:
                 store.P_post[-1] = P.copy()
                 store.dx[-1] = upd_dx
@@ -464,10 +509,12 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         innovations=innovations, misalignment_t_ns=np.array(mis_t, dtype=np.int64),
         misalignment=mis, misalignment_sigma=np.array(mis_sig, float).reshape(len(mis_t), n_cam, 3),
         triad_t_ns=np.array(tri_t, dtype=np.int64), triad_q_eb=np.array(tri_q).reshape(-1, 4),
-        rejected=dict(rejected), calibration=cal, R_bc=np.array(R_bc_est, float).reshape(n_cam, 3, 3), store=store)
+        rejected=dict(rejected), calibration=cal, R_bc=np.array(R_bc_est, float).reshape(n_cam, 3, 3), store=store,
+        clock_offset=np.array(clk_t, float).reshape(len(mis_t), n_cam),
+        clock_offset_sigma=np.array(clk_sig, float).reshape(len(mis_t), n_cam))
 
 
-def _feedback(dx, layout, x, v, q, cal, R_bc_est, zeta_hat):
+def _feedback(dx, layout, x, v, q, cal, R_bc_est, zeta_hat, clk_hat):
     """Closed-loop correction of the nominal state with the estimated errors; returns whether the
     IMU calibration changed."""
     x = x + dx[layout["dx"]]
@@ -486,6 +533,8 @@ def _feedback(dx, layout, x, v, q, cal, R_bc_est, zeta_hat):
             R_bc_est[c] = ins.rotvec_to_R(np.ascontiguousarray(dx[g.slice])) @ R_bc_est[c]  # 003 eq. (50)
         elif g.name.startswith("zeta_"):
             zeta_hat[g.name] += dx[g.slice]
+        elif g.name.startswith("dt_c_"):
+            clk_hat[int(g.name[5:])] += dx[g.slice][0]  # stamp correction: t = stamp - offset
     return np.ascontiguousarray(x), np.ascontiguousarray(v), np.ascontiguousarray(q), changed
 
 
@@ -528,7 +577,7 @@ def _cov3_problem(z, R):
 
 
 def _vector_rows(vec, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest, last_seen, zeta_hat,
-                 tuning, t_m, group_vecs):
+                 tuning, t_m, group_vecs, v_m=None, w_eb=None):
     """Candidate 2-row tangent-plane measurement of one camera vector, and P (with the
     Gauss-Markov block restarted at a first or stale sighting)."""
     cam = int(vec.camera[j])
@@ -565,6 +614,10 @@ def _vector_rows(vec, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest, la
     cname = layout.cam_name(cam)
     if layout.has(cname):
         H3[:, layout[cname]] = H_psic
+    tname = layout.clock_name(cam)
+    if layout.has(tname):
+        # the frame was taken at stamp - offset_true = t_est - dt_c: e_true = e(t_est) - de_c/dt dt_c
+        H3[:, layout[tname].start] = -vector_rate(target, x_m, v_m, u_e, R_m, R_bc, w_eb, tpos)
     R3 = tuning.vector_white ** 2 * np.eye(3)
     if has_z:
         sl = layout[zname]

@@ -44,6 +44,10 @@ class Tuning:
         [rad/s/sqrt(Hz)]: table 3 value plus the bracketed extra tuning noise, added in quadrature.
     accel_bias ... camera_misalignment : StateGroupTuning
         Error groups of 003 eq. (46), generalised (scale factor and misalignment of the IMU).
+    camera_clock_offset : StateGroupTuning
+        Time offset of each camera's clock against the IMU time base [s] (issue 9; 003 §7.3), one
+        constant state per camera (:mod:`nav.clock_offset` gives the initial value and sigma).
+        Off by default (not in table 3); TOML ``[states.camera_clock_offset]`` with ``sigma_ms``.
     vector_white : float
         White noise (1 sigma, per axis, unit-vector units) added to eq. (49) as Q_tuning.
     vector_gm_mode : str
@@ -76,6 +80,7 @@ class Tuning:
     gyro_scale: StateGroupTuning = StateGroupTuning("C", 2000e-6)
     gyro_misalignment: StateGroupTuning = StateGroupTuning("C", 2e-3)
     camera_misalignment: StateGroupTuning = StateGroupTuning("E", math.radians(1.0))
+    camera_clock_offset: StateGroupTuning = StateGroupTuning("off", 0.05)
     vector_white: float = 0.005
     vector_gm_mode: str = "C"
     correlation_time_s: float = 20.0
@@ -130,6 +135,7 @@ _GROUPS = {  # key: (unit key, factor to SI)
     "gyro_scale": ("sigma_ppm", 1e-6),
     "gyro_misalignment": ("sigma_mrad", 1e-3),
     "camera_misalignment": ("sigma_deg", math.radians(1.0)),
+    "camera_clock_offset": ("sigma_ms", 1e-3),
 }
 
 
