@@ -30,7 +30,9 @@ _TARGET_KEYS = {"enabled", "min_pixels", "max_candidates", "score_rays", "fit_ra
                 "ransac_threshold_px", "ransac_max_hypotheses", "ransac_confidence",
                 "min_inlier_fraction", "R_px2", "L_px", "atmosphere_m", "atmosphere_sigma_m",
                 "alpha_min_deg", "alpha_max_deg", "side_check_px", "side_check_min",
-                "side_check_rays", "edge_offset_px", "direct_outlier_fraction", "compete_fraction", "gate_deg", "curvature_tol_deg"}
+                "side_check_rays", "edge_offset_px", "direct_outlier_fraction", "compete_fraction", "gate_deg", "curvature_tol_deg",
+                "limb_fraction", "limb_channel", "limb_height_m", "limb_height_sigma_m",
+                "limb_min_sun_elev_deg", "limb_min_used"}
 _OTHER = {"max_residual_rad2", "min_length_px", "search_alpha_min_deg", "search_line_spacing_px",
           "otsu_range"}
 
@@ -51,13 +53,13 @@ def _target(name: str, d: dict[str, Any], focal_px: float, where: str) -> Target
         det = DetectionConfig(binar, SearchConfig(line_spacing_px=spacing), int(d.get("min_length_px", 20)))
         kw = {k: v for k, v in d.items() if k in _TARGET_KEYS}
         for k in ("min_pixels", "max_candidates", "score_rays", "fit_rays", "ransac_max_hypotheses",
-                  "side_check_rays"):
+                  "side_check_rays", "limb_channel"):
             if k in kw:
                 if not isinstance(kw[k], int) or isinstance(kw[k], bool):
                     raise ValueError(f"{k} = {kw[k]!r}; expected an integer")
         for k, v in kw.items():
             if k != "enabled" and k not in ("min_pixels", "max_candidates", "score_rays", "fit_rays",
-                                            "ransac_max_hypotheses", "side_check_rays"):
+                                            "ransac_max_hypotheses", "side_check_rays", "limb_channel"):
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise ValueError(f"{k} = {v!r}; expected a number")
                 kw[k] = float(v)

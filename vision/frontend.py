@@ -29,6 +29,10 @@ Pipeline per target (`process_frame`)
    003 eq. (33) with the correlated pixel noise (R, L) of eqs. (34)-(36), (38) is computed
    (`vision.covariance.direction_covariance`), plus, for the Earth, the term of the uncertain
    effective atmosphere thickness (sigma_d, below), and the spherical overbound of eq. (37).
+   Earth with a prior giving x_e, R_ec and the Sun direction: before the covariance the winner's
+   inlier pixels are moved to the fraction-of-peak crossing of the limb profile
+   (`vision.limb.limb_edge_points`, exposure-invariant) and refitted with d = ``limb_height_m``
+   (sigma ``limb_height_sigma_m``) when enough profiles are usable (``limb_*`` settings).
 
 Residual thresholds (003 §7.3 re-derived for our residual)
 ----------------------------------------------------------
@@ -68,6 +72,7 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
 from vision.covariance import direction_covariance, tangent_basis
+from vision.limb import LimbEdgeConfig, limb_edge_points, sun_elevation
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
                           direction_and_radius, earth_side_check, mirrored_direction, nadir_from_horizon)
@@ -126,6 +131,18 @@ class TargetConfig:
         brightness edge, which lies between them and their dark neighbours: half a pixel. The
         Earth cone is shrunk by this angle (without it the nadir is biased by ~0.03 deg on
         rendered frames); the Sun/Moon radius absorbs it.
+    limb_fraction : Earth: > 0 moves the winner's edge pixels to where the limb profile crosses
+        this fraction of its own maximum (`vision.limb`, exposure-invariant), and fits with
+        d = ``limb_height_m`` (uncertainty ``limb_height_sigma_m``) instead of the threshold edge
+        with ``atmosphere_m``; needs a prior with x_e, R_ec and ``sun_c``. 0 = off.
+    limb_channel : colour channel of the decoded frame for the limb profile (BGR: 2 = red).
+    limb_height_m, limb_height_sigma_m : tangent height of the fraction-of-peak crossing [m] and
+        its frame-to-frame and along-the-limb spread (docs/vision.md).
+    limb_min_sun_elev_deg : limb points with the Sun lower than this at the tangent point are not
+        used (the lower limb is dimmed by the sunlight's own path, `vision.limb.sun_elevation`).
+    limb_min_used : the fraction-of-peak edge is used only when at least this fraction of the
+        winner's inliers give a usable profile (not clipped, Sun high enough); else the threshold
+        edge with ``atmosphere_m`` stands.
     """
 
     enabled: bool = True
@@ -153,6 +170,12 @@ class TargetConfig:
     direct_outlier_fraction: float = 0.05
     curvature_tol_deg: float = 10.0
     compete_fraction: float = 0.5
+    limb_fraction: float = 0.0
+    limb_channel: int = 2
+    limb_height_m: float = 19.5e3
+    limb_height_sigma_m: float = 250.0
+    limb_min_sun_elev_deg: float = 10.0
+    limb_min_used: float = 0.1
 
     def __post_init__(self):
         def bad(name, expected):
@@ -184,6 +207,17 @@ class TargetConfig:
             bad("alpha_max_deg", "alpha_min_deg < alpha_max_deg < 90")
         if not (math.isfinite(self.atmosphere_m) and 0.0 <= self.atmosphere_m < 200e3):
             bad("atmosphere_m", "0 <= d < 200 km")
+        if not 0.0 <= self.limb_fraction < 1.0:
+            bad("limb_fraction", "0 (off) or a fraction in (0, 1)")
+        if self.limb_channel not in (-1, 0, 1, 2):
+            bad("limb_channel", "-1 (mean) or a channel index 0, 1, 2 of the decoded (BGR) frame")
+        if not (math.isfinite(self.limb_height_m) and 0.0 <= self.limb_height_m < 200e3):
+            bad("limb_height_m", "0 <= h < 200 km")
+        for name in ("limb_height_sigma_m", "limb_min_sun_elev_deg"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                bad(name, "a finite number >= 0")
+        if not 0.0 <= self.limb_min_used <= 1.0:
+            bad("limb_min_used", "a fraction in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -214,10 +248,10 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
         min_pixels=100, max_residual=4e-6, R_px2=1.0, L_px=300.0,
         atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
-        score_rays=100, ransac_max_hypotheses=100)
+        score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5)
     sun = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
-        min_pixels=12, max_residual=1e-6, R_px2=9.0, L_px=300.0, alpha_min_deg=0.2,
+        min_pixels=12, max_residual=1e-6, R_px2=0.16, L_px=300.0, alpha_min_deg=0.2,
         alpha_max_deg=4.0, ransac_threshold_px=2.0, min_inlier_fraction=0.5, score_rays=100,
         ransac_max_hypotheses=100)
     moon = TargetConfig(
@@ -305,6 +339,7 @@ class TargetResult:
     reason: str = ""
     baseline_e_c: np.ndarray | None = None   # general conic fit (vision.conic) on the winner
     baseline_reason: str = ""
+    limb_edge: bool = False   # Earth: the fraction-of-peak limb edge was used (vision.limb)
 
 
 @dataclass
@@ -626,8 +661,34 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     return res
 
 
+def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit):
+    """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels and the refit
+    with its height; None when too few limb points are usable (the caller keeps the threshold
+    edge). Returns (model, fit, uv, rays, J, inliers)."""
+    model_l, R_ec, x_e, sun_e = limb
+    lc = LimbEdgeConfig(fraction=tc.limb_fraction, channel=tc.limb_channel)
+    uvn, rn, ok = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc)
+    if np.any(ok):
+        ok[ok] = sun_elevation(rn[ok] @ R_ec.T, x_e, sun_e) >= math.radians(tc.limb_min_sun_elev_deg)
+    n_ok = int(ok.sum())
+    if n_ok < max(20, tc.limb_min_used * uv.shape[0]):
+        return None
+    rays2, J2 = unproject_jacobian(camera, uvn[ok])
+    H2 = model_l.to_fit(rays2)
+    e0 = model_l.M @ e_c
+    fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))
+    thr = tc.ransac_threshold_px * pa[ok]
+    inl = np.ones(n_ok, bool)
+    for _ in range(2):
+        inl = np.abs(angle_residuals(H2, fit.e_c, fit.alpha)) <= thr
+        if inl.sum() < 20:
+            return None
+        fit = _fit(H2[inl], model_l.alpha, fit.e_c)
+    return model_l, fit, uvn[ok], rays2, J2, inl
+
+
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,
-                    baseline: bool, predicted: np.ndarray | None = None) -> TargetResult:
+                    baseline: bool, predicted: np.ndarray | None = None, limb=None) -> TargetResult:
     t0 = time.perf_counter()
     det = detect(image, tc.detection, mask, expected_shape=(camera.height, camera.width))
     t1 = time.perf_counter()
@@ -686,16 +747,25 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
     t3 = time.perf_counter()
     timings[f"{name}.refit"] = t3 - t2
     L_eff = max(1.0, tc.L_px / step)
+    sigma_d = tc.atmosphere_sigma_m
+    if is_earth and limb is not None and tc.limb_fraction > 0:
+        lr = _limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), fit.e_c)
+        timings["earth.limb"] = time.perf_counter() - t3
+        if lr is not None:
+            model, fit, uv, rays_c, J, inl = lr
+            H = model.to_fit(rays_c)
+            sigma_d = tc.limb_height_sigma_m
+            out.limb_edge = True
     if is_earth:
         e_c = model.to_camera(fit.e_c)
         cov = direction_covariance(rays_c[inl], J[inl], e_c, tc.R_px2, L_eff, method="constrained")
         P = cov.P_c
-        if tc.atmosphere_sigma_m > 0:
+        if sigma_d > 0:
             # d e / d d = d e / d alpha * d alpha / d d (module docstring), mapped into the camera
             g_fit = _alpha_sensitivity(H[inl], fit.e_c, fit.alpha) * model.alpha_rate
             g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
             g /= 1e-3
-            P = P + tc.atmosphere_sigma_m**2 * np.outer(g, g)
+            P = P + sigma_d**2 * np.outer(g, g)
         conic = conic_type(e_c, float(np.median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1)))))[1]
     else:
         e_c = fit.e_c
@@ -782,6 +852,12 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
                 r = _earth.R_MEAN
             model = sphere_model(height_m, r, d)
         model_kind = model.kind
+    limb = None
+    if (config.earth.enabled and config.earth.limb_fraction > 0 and prior is not None and prior.x_e is not None
+            and prior.R_ec is not None and prior.sun_c is not None and image.ndim == 3):
+        R_ec = np.asarray(prior.R_ec, dtype=float)
+        limb = (ellipsoid_model(prior.x_e, R_ec, config.earth.limb_height_m), R_ec,
+                np.asarray(prior.x_e, dtype=float), R_ec @ np.asarray(prior.sun_c, dtype=float))
     for name in TARGETS:
         tc = config.target(name)
         if not tc.enabled:
@@ -794,7 +870,8 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
                 if pred.shape != (3,) or not np.all(np.isfinite(pred)) or np.linalg.norm(pred) == 0:
                     raise ValueError(f"prior.{name}_c = {pred!r}; expected a finite 3-vector")
                 pred = pred / np.linalg.norm(pred)
-        tr = _process_target(name, image, camera, mask, tc, model, rng, timings, baseline and name == "earth", pred)
+        tr = _process_target(name, image, camera, mask, tc, model, rng, timings, baseline and name == "earth", pred,
+                             limb if name == "earth" else None)
         targets[name] = tr
         if tr.record is not None:
             r = tr.record
