@@ -320,3 +320,66 @@ class TransitionBuilder:
         d = np.ones(n)
         d[self.zeta] = np.exp(-dt / self.tc)
         return BlockTransition(A, d)
+
+
+@nb.njit(cache=True)
+def propagate_covariance(P, A, d, q_add, zeta_start, P_c, gm_add, work):
+    """In place: ``P <- sym(Phi P Phi^T + diag(q_add) + gm_add P_c[g] on each zeta block)``.
+
+    The same arithmetic as :meth:`BlockTransition.apply` followed by the white process noise
+    ``q dt`` and the Gauss-Markov driving noise ``(1 - phi^2) P_c`` of 003 eqs. (43)-(45) (the
+    filter's propagation, :mod:`nav.navigator`), without n x n temporaries: ``work`` (n, n) is
+    scratch, and the products run over the non-zero columns of A only (the columns of psi_c,
+    dt_c and zeta are zero).
+
+    Parameters
+    ----------
+    P : (n, n) covariance, overwritten; A : (9, n) navigation rows of Phi; d : (n,) diagonal of
+    the other rows; q_add : (n,) added to the diagonal; zeta_start : (nz,) int64 first index of
+    each zeta group; P_c : (nz, 3, 3) their latest P_c; gm_add : ``1 - phi^2``; work : (n, n).
+    """
+    n = P.shape[0]
+    cols = np.empty(n, np.int64)
+    nc = 0
+    for j in range(n):
+        for i in range(9):
+            if A[i, j] != 0.0:
+                cols[nc] = j
+                nc += 1
+                break
+    M = work
+    # M = Phi P: rows 0..8 are A P, the others d_i P_i
+    for i in range(9):
+        for j in range(n):
+            M[i, j] = 0.0
+        for q in range(nc):
+            c = cols[q]
+            a = A[i, c]
+            for j in range(n):
+                M[i, j] += a * P[c, j]
+    for i in range(9, n):
+        di = d[i]
+        for j in range(n):
+            M[i, j] = P[i, j] * di
+    # P = M Phi^T: columns 0..8 are M A^T, the others M_j d_j
+    for i in range(n):
+        for j in range(9):
+            a = 0.0
+            for q in range(nc):
+                c = cols[q]
+                a += M[i, c] * A[j, c]
+            P[i, j] = a
+        for j in range(9, n):
+            P[i, j] = M[i, j] * d[j]
+    for i in range(n):
+        P[i, i] += q_add[i]
+    for g in range(zeta_start.size):
+        o = zeta_start[g]
+        for i in range(3):
+            for j in range(3):
+                P[o + i, o + j] += gm_add * P_c[g, i, j]
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v

@@ -157,3 +157,39 @@ def gps_velocity(v_e, R_eb, w_eb_b, lever_b):
     the lever-arm term (|l| * gyro error, micrometres per second) is neglected."""
     r = R_eb @ (_sk(np.asarray(w_eb_b, float)) @ np.asarray(lever_b, float))
     return np.asarray(v_e, float) + r, np.eye(3), -_sk(r)
+
+
+def tangent_bases(e) -> np.ndarray:
+    """:func:`tangent_basis` of every row of ``e`` (N, 3): (N, 3, 2)."""
+    e = np.asarray(e, float)
+    e = e / np.linalg.norm(e, axis=-1, keepdims=True)
+    a = np.where((np.abs(e[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    t1 = np.cross(e, a)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    return np.stack([t1, np.cross(e, t1)], axis=-1)
+
+
+def vector_covariance_problems(P_c, e_c) -> np.ndarray:
+    """:func:`vector_covariance_problem` of every row at once: ``P_c`` (N, 3, 3), ``e_c`` (N, 3)
+    unit vectors (rows that are not finite unit vectors get an answer that is not meaningful);
+    returns an object array of reasons (None where the covariance is usable)."""
+    P = np.asarray(P_c, float)
+    e = np.asarray(e_c, float)
+    N = P.shape[0]
+    if P.shape != (N, 3, 3) or e.shape != (N, 3):
+        raise ValueError(f"P_c, e_c: expected (N, 3, 3) and (N, 3), got {P.shape} and {e.shape}")
+    out = np.full(N, None, dtype=object)
+    fin = np.all(np.isfinite(P), axis=(1, 2))
+    out[~fin] = "non-finite covariance"
+    Pf = np.where(fin[:, None, None], P, np.eye(3))
+    scale = np.maximum(np.max(np.abs(Pf), axis=(1, 2)), 1e-300)
+    asym = fin & (np.max(np.abs(Pf - np.swapaxes(Pf, 1, 2)), axis=(1, 2)) > 1e-9 * scale)
+    out[asym] = "non-symmetric covariance"
+    ev = np.linalg.eigvalsh(0.5 * (Pf + np.swapaxes(Pf, 1, 2)))[:, 0]
+    not_psd = fin & ~asym & (ev < -1e-9 * scale)
+    out[not_psd] = "covariance not positive semi-definite"
+    ok_e = np.all(np.isfinite(e), axis=1) & (np.linalg.norm(np.where(np.isfinite(e), e, 0.0), axis=1) > 0)
+    T = tangent_bases(np.where(ok_e[:, None], e, [0.0, 0.0, 1.0]))
+    ev2 = np.linalg.eigvalsh(np.swapaxes(T, 1, 2) @ Pf @ T)[:, 0]
+    out[fin & ~asym & ~not_psd & (ev2 <= 1e-12 * scale)] = "covariance not positive definite across the vector"
+    return out

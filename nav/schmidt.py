@@ -6,13 +6,26 @@ gain the covariance must be updated in Joseph form,
 ``P+ = (I - K H) P (I - K H)^T + K R K^T``, which is valid for any gain and keeps P symmetric
 positive (semi-)definite; it is evaluated as ``P - K H P - P H^T K^T + K S K^T`` (algebraically
 identical, fewer products) and symmetrised.
+
+The arithmetic is one numba kernel, :func:`update_kernel`, shared by :func:`schmidt_update` (one
+measurement, the reference API) and :mod:`nav.navigator` (every measurement of an epoch at once:
+each gated on its own with its diagonal block of S, then the accepted ones applied together). It
+exploits the sparsity of H (only the columns where H is non-zero enter ``P H^T`` and ``H P H^T``;
+GPS touches 9 states, a camera vector dx, psi, psi_c, dt_c and its zeta), skips the zero gain rows
+of the considered states and updates P in place (no n x n temporaries).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from scipy.stats import chi2
+
+#: status / per-block codes of :func:`update_kernel`
+OK, GATED, NOT_PD, NONFINITE = 0, 1, 2, 3
+REASONS = {GATED: "chi-square gate", NOT_PD: "innovation covariance not positive definite",
+           NONFINITE: "non-finite innovation or Jacobian"}
 
 
 @dataclass
@@ -40,35 +53,240 @@ def propagate(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
     return symmetrize(Phi @ P @ Phi.T + Qd)
 
 
-def schmidt_update(P: np.ndarray, H: np.ndarray, R: np.ndarray, s: np.ndarray, estimated: np.ndarray,
-                   gate: float | None = None) -> UpdateResult:
-    """One Schmidt-Kalman measurement update.
+@nb.njit(cache=True)
+def _cholesky(S, L):
+    """Lower Cholesky factor of the small SPD ``S`` into ``L``; False if a pivot is not > 0
+    (not positive definite, or NaN)."""
+    m = S.shape[0]
+    for j in range(m):
+        acc = S[j, j]
+        for p in range(j):
+            acc -= L[j, p] * L[j, p]
+        if not acc > 0.0:
+            return False
+        ljj = np.sqrt(acc)
+        L[j, j] = ljj
+        for i in range(j + 1, m):
+            a = S[i, j]
+            for p in range(j):
+                a -= L[i, p] * L[j, p]
+            L[i, j] = a / ljj
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+@nb.njit(cache=True)
+def _forward(L, b, y):
+    """Solve ``L y = b`` (L lower triangular)."""
+    m = L.shape[0]
+    for i in range(m):
+        a = b[i]
+        for p in range(i):
+            a -= L[i, p] * y[p]
+        y[i] = a / L[i, i]
+
+
+@nb.njit(cache=True)
+def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
+    """Gate and apply the Schmidt-Kalman update of a stack of measurement blocks, in place.
 
     Parameters
     ----------
-    P : (n, n) prior covariance of the error state.
+    P : (n, n) prior covariance, overwritten with the posterior when an update is applied.
+    H : (m, n) stacked Jacobians; R : (m, m) noise (block diagonal over the blocks);
+    s : (m,) stacked innovations; est : (n,) bool, False for considered states.
+    offs : (nb + 1,) int64 row offsets of the blocks; gates : (nb,) NIS thresholds (<= 0: no gate).
+    S : (m, m) out, ``H P H^T + R`` (symmetrised; its diagonal blocks are each block's S).
+    nis : (nb,) out, each block's NIS ``s_b^T S_bb^-1 s_b`` with the prior P.
+    code : (nb,) out, OK, GATED, NOT_PD (S_bb not positive definite) or NONFINITE.
+    dx : (n,) out, the correction ``K s`` (zero in considered rows and when nothing is applied).
+
+    Returns
+    -------
+    int
+        OK if the accepted blocks were applied (P updated), NOT_PD if the batch of the accepted
+        blocks could not be (P unchanged), GATED if no block was accepted.
+    """
+    n = P.shape[0]
+    m = H.shape[0]
+    nblk = offs.size - 1
+    for i in range(n):
+        dx[i] = 0.0
+    # blocks with a non-finite row of H, s or R are rejected on their own
+    bad = np.zeros(nblk, np.bool_)
+    for b in range(nblk):
+        for r in range(offs[b], offs[b + 1]):
+            if not np.isfinite(s[r]):
+                bad[b] = True
+            for j in range(n):
+                if not np.isfinite(H[r, j]):
+                    bad[b] = True
+            for c in range(offs[b], offs[b + 1]):
+                if not np.isfinite(R[r, c]):
+                    bad[b] = True
+    # columns where H is non-zero (the only ones that enter P H^T and H P H^T)
+    cols = np.empty(n, np.int64)
+    nc = 0
+    for j in range(n):
+        for r in range(m):
+            if H[r, j] != 0.0:
+                cols[nc] = j
+                nc += 1
+                break
+    # PHt = P H^T (n, m) over the non-zero columns of H
+    PHt = np.zeros((n, m))
+    for i in range(n):
+        for r in range(m):
+            a = 0.0
+            for q in range(nc):
+                j = cols[q]
+                a += P[i, j] * H[r, j]
+            PHt[i, r] = a
+    for r in range(m):
+        for c in range(m):
+            a = R[r, c]
+            for q in range(nc):
+                j = cols[q]
+                a += H[r, j] * PHt[j, c]
+            S[r, c] = a
+    for r in range(m):
+        for c in range(r + 1, m):
+            v = 0.5 * (S[r, c] + S[c, r])
+            S[r, c] = v
+            S[c, r] = v
+    # per-block gate with the prior
+    acc = np.zeros(m, np.int64)
+    ma = 0
+    for b in range(nblk):
+        o0, o1 = offs[b], offs[b + 1]
+        d = o1 - o0
+        if bad[b]:
+            code[b] = NONFINITE
+            nis[b] = np.nan
+            continue
+        Lb = np.zeros((d, d))
+        if not _cholesky(S[o0:o1, o0:o1], Lb):
+            code[b] = NOT_PD
+            nis[b] = np.nan
+            continue
+        y = np.empty(d)
+        _forward(Lb, s[o0:o1], y)
+        v = 0.0
+        for i in range(d):
+            v += y[i] * y[i]
+        nis[b] = v
+        if gates[b] > 0.0 and v > gates[b]:
+            code[b] = GATED
+            continue
+        code[b] = OK
+        for r in range(o0, o1):
+            acc[ma] = r
+            ma += 1
+    if ma == 0:
+        return GATED
+    # the accepted blocks together: S_a is the sub-matrix of S (R is block diagonal)
+    Sa = np.empty((ma, ma))
+    for r in range(ma):
+        for c in range(ma):
+            Sa[r, c] = S[acc[r], acc[c]]
+    La = np.zeros((ma, ma))
+    if not _cholesky(Sa, La):
+        return NOT_PD
+    # K^T = S_a^-1 (P H_a^T)^T via the Cholesky factor: L Z = PHt_a^T, L^T K^T = Z; considered
+    # rows of K (columns of K^T) are zero
+    Kt = np.zeros((ma, n))
+    z = np.empty(ma)
+    col = np.empty(ma)
+    for i in range(n):
+        if not est[i]:
+            continue
+        for r in range(ma):
+            col[r] = PHt[i, acc[r]]
+        _forward(La, col, z)
+        for r in range(ma - 1, -1, -1):
+            a = z[r]
+            for p in range(r + 1, ma):
+                a -= La[p, r] * Kt[p, i]
+            Kt[r, i] = a / La[r, r]
+    sa = np.empty(ma)
+    for r in range(ma):
+        sa[r] = s[acc[r]]
+    for i in range(n):
+        a = 0.0
+        for r in range(ma):
+            a += Kt[r, i] * sa[r]
+        dx[i] = a
+    # KS = K S_a (n, ma), zero in considered rows
+    KSt = np.zeros((ma, n))
+    for i in range(n):
+        if not est[i]:
+            continue
+        for c in range(ma):
+            a = 0.0
+            for r in range(ma):
+                a += Kt[r, i] * Sa[r, c]
+            KSt[c, i] = a
+    # P+ = P - K H P - P H^T K^T + K S K^T, with K H P = K PHt_a^T; only the upper triangle is
+    # computed and mirrored (the symmetrised result)
+    for i in range(n):
+        ei = est[i]
+        for j in range(i, n):
+            ej = est[j]
+            if not (ei or ej):
+                # considered x considered: the K rows are zero, the block is only symmetrised
+                v = 0.5 * (P[i, j] + P[j, i])
+                P[i, j] = v
+                P[j, i] = v
+                continue
+            khp_ij = 0.0
+            khp_ji = 0.0
+            ksk = 0.0
+            for r in range(ma):
+                pa_j = PHt[j, acc[r]]
+                pa_i = PHt[i, acc[r]]
+                khp_ij += Kt[r, i] * pa_j
+                khp_ji += Kt[r, j] * pa_i
+                ksk += KSt[r, i] * Kt[r, j]
+            # (Pn + Pn^T)/2 with Pn = P - KHP - KHP^T + KSK; KSK is symmetric in exact arithmetic
+            ksk_t = 0.0
+            for r in range(ma):
+                ksk_t += KSt[r, j] * Kt[r, i]
+            pij = P[i, j] - khp_ij - khp_ji + ksk
+            pji = P[j, i] - khp_ji - khp_ij + ksk_t
+            v = 0.5 * (pij + pji)
+            P[i, j] = v
+            P[j, i] = v
+    return OK
+
+
+def schmidt_update(P: np.ndarray, H: np.ndarray, R: np.ndarray, s: np.ndarray, estimated: np.ndarray,
+                   gate: float | None = None) -> UpdateResult:
+    """One Schmidt-Kalman measurement update (:func:`update_kernel` with one block).
+
+    Parameters
+    ----------
+    P : (n, n) prior covariance of the error state (not modified).
     H : (m, n) measurement Jacobian; R : (m, m) measurement noise; s : (m,) innovation.
     estimated : (n,) bool, False for considered states (their gain rows are zeroed).
     gate : float, optional
         Reject if the NIS exceeds it (e.g. :func:`chi2_gate`); rejected updates return P unchanged.
     """
     s = np.asarray(s, float)
+    n = P.shape[0]
     if not (np.all(np.isfinite(s)) and np.all(np.isfinite(H)) and np.all(np.isfinite(R))):
-        return UpdateResult(np.zeros(P.shape[0]), P, s, np.full((s.size, s.size), np.nan), np.nan, False,
+        return UpdateResult(np.zeros(n), P, s, np.full((s.size, s.size), np.nan), np.nan, False,
                             "non-finite innovation or Jacobian")
-    PHt = P @ H.T
-    S = symmetrize(H @ PHt + R)
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        return UpdateResult(np.zeros(P.shape[0]), P, s, S, np.nan, False, "innovation covariance not positive definite")
-    y = np.linalg.solve(L, s)
-    nis = float(y @ y)
-    if gate is not None and nis > gate:
-        return UpdateResult(np.zeros(P.shape[0]), P, s, S, nis, False, "chi-square gate")
-    # K = P H^T S^-1 via the Cholesky factor
-    K = np.linalg.solve(L.T, np.linalg.solve(L, PHt.T)).T
-    K[~estimated, :] = 0.0
-    KHP = K @ PHt.T
-    Pn = P - KHP - KHP.T + K @ S @ K.T
-    return UpdateResult(K @ s, symmetrize(Pn), s, S, nis, True, None)
+    m = s.size
+    Pn = np.array(P, dtype=float, order="C")
+    S = np.empty((m, m))
+    nis = np.empty(1)
+    code = np.empty(1, np.int64)
+    dx = np.empty(n)
+    st = update_kernel(Pn, np.ascontiguousarray(H, dtype=float), np.ascontiguousarray(R, dtype=float),
+                       np.ascontiguousarray(s), np.ascontiguousarray(estimated, dtype=np.bool_),
+                       np.array([0, m], np.int64), np.array([-1.0 if gate is None else float(gate)]),
+                       S, nis, code, dx)
+    if st != OK:
+        return UpdateResult(np.zeros(n), P, s, S, float(nis[0]), False, REASONS[int(code[0])])
+    return UpdateResult(dx, Pn, s, S, float(nis[0]), True, None)

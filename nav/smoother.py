@@ -24,11 +24,19 @@ estimated states through the next step's recursion). The covariance recursion is
 applied to the full state; with Schmidt gains it is an approximation (the Schmidt covariance is
 not the optimal one RTS assumes), documented here and checked in tests/test_smoother.py by the
 smoothed errors' consistency on a simulated coast.
+
+Implementation: the backward pass over the forward run's store (:class:`nav.navigator.SmootherStore`)
+is one numba kernel, :func:`rts_kernel`: per epoch a Cholesky factorisation of ``P_{k+1}-``, the
+gain from two triangular solves with ``Phi P_k+`` (whose structure, 9 dense rows and a diagonal,
+is exploited) and the covariance recursion, all in preallocated (n, n) work arrays. Plain loops
+instead of BLAS calls: for n ~ 45 the per-call overhead and OpenBLAS's threading on small
+matrices (which stalls when the cores are busy) cost more than the arithmetic.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from nav import ins
@@ -66,40 +74,169 @@ class SmoothResult:
     q_eb: np.ndarray
 
 
+@nb.njit(cache=True, fastmath={"contract"})
+def _cholesky_upper(S, U):
+    """``U`` upper triangular with ``U^T U = S`` (right-looking, row-contiguous updates); False if
+    S is not positive definite. Only the upper triangle of S is read."""
+    n = S.shape[0]
+    for i in range(n):
+        for j in range(n):
+            U[i, j] = S[i, j] if j >= i else 0.0
+    for j in range(n):
+        piv = U[j, j]
+        if not piv > 0.0:
+            return False
+        inv = 1.0 / np.sqrt(piv)
+        for c in range(j, n):
+            U[j, c] *= inv
+        for i in range(j + 1, n):
+            a = U[j, i]
+            if a != 0.0:
+                for c in range(i, n):
+                    U[i, c] -= a * U[j, c]
+    return True
+
+
+@nb.njit(cache=True, fastmath={"contract"})
+def _chol_solve(U, B):
+    """In place ``B <- (U^T U)^-1 B`` (B (n, r)), row-oriented (axpy) loops."""
+    n = U.shape[0]
+    r = B.shape[1]
+    for i in range(n):           # U^T Y = B
+        for p in range(i):
+            a = U[p, i]
+            if a != 0.0:
+                for c in range(r):
+                    B[i, c] -= a * B[p, c]
+        inv = 1.0 / U[i, i]
+        for c in range(r):
+            B[i, c] *= inv
+    for i in range(n - 1, -1, -1):   # U X = Y
+        for p in range(i + 1, n):
+            a = U[i, p]
+            if a != 0.0:
+                for c in range(r):
+                    B[i, c] -= a * B[p, c]
+        inv = 1.0 / U[i, i]
+        for c in range(r):
+            B[i, c] *= inv
+
+
+@nb.njit(cache=True, fastmath={"contract"})
+def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Ps, k_start):
+    """Backward RTS pass of :func:`rts_smooth` (module docstring) from epoch ``k_start`` down to 0.
+
+    Parameters
+    ----------
+    P_prior : (K, n, n); post : (K,) row of ``P_full`` with the posterior (-1: the prior);
+    A, dphi : (K, 9, n), (K, n) transition from k-1 to k; dxs : (K, n) fed-back corrections;
+    est : (n,) bool; d : (K, n) smoothed errors (row ``k_start + 1`` given, rows below written);
+    Pd : (K, n) smoothed variances (written); Ps : (n, n) smoothed covariance at ``k_start + 1``,
+    updated in place.
+
+    Returns
+    -------
+    int
+        -1 when done, or the epoch k where ``P_{k+1}-`` is not positive definite (nothing written
+        for it): the caller solves that epoch by least squares and continues from k - 1.
+    """
+    n = P_prior.shape[1]
+    L = np.empty((n, n))
+    Ct = np.empty((n, n))
+    Dl = np.empty((n, n))
+    X = np.empty((n, n))
+    w = np.empty(n)
+    for k in range(k_start, -1, -1):
+        j = post[k]
+        Pp = P_prior[k + 1]
+        Pk = P_full[j] if j >= 0 else P_prior[k]
+        Ak = A[k + 1]
+        dk = dphi[k + 1]
+        # Ct = Phi P_post: rows 0..8 A P_post, the others d_i P_post[i]
+        for a in range(9):
+            for b in range(n):
+                Ct[a, b] = 0.0
+            for p in range(n):
+                c = Ak[a, p]
+                if c != 0.0:
+                    for b in range(n):
+                        Ct[a, b] += c * Pk[p, b]
+        for a in range(9, n):
+            c = dk[a]
+            for b in range(n):
+                Ct[a, b] = c * Pk[a, b]
+        # C^T = Pp^-1 Phi P_post (Pp symmetric)
+        if not _cholesky_upper(Pp, L):
+            return k
+        _chol_solve(L, Ct)
+        # d_k = C (d_{k+1} + delta_{k+1}), considered components held at zero
+        for a in range(n):
+            w[a] = d[k + 1, a] + dxs[k + 1, a]
+        for a in range(n):
+            d[k, a] = 0.0
+        for p in range(n):
+            c = w[p]
+            if c != 0.0:
+                for a in range(n):
+                    d[k, a] += Ct[p, a] * c
+        for a in range(n):
+            if not est[a]:
+                d[k, a] = 0.0
+        # Ps = P_post + C (Ps_next - Pp) C^T
+        for a in range(n):
+            for b in range(n):
+                Dl[a, b] = Ps[a, b] - Pp[a, b]
+        # C (Ps_next - Pp) C^T = (Ct^T Dl) Ct, numpy's left-to-right order of C @ D @ C.T (two
+        # 45 x 45 BLAS products: single-threaded at this size), then P_post is added
+        np.dot(Ct.T, Dl, X)
+        np.dot(X, Ct, Dl)
+        for a in range(n):
+            for b in range(n):
+                Ps[a, b] = Pk[a, b] + Dl[a, b]
+        for a in range(n):
+            for b in range(a + 1, n):
+                v = 0.5 * (Ps[a, b] + Ps[b, a])
+                Ps[a, b] = v
+                Ps[b, a] = v
+            Pd[k, a] = Ps[a, a]
+    return -1
+
+
 def rts_smooth(res: NavResult, *, keep_full: bool = False) -> SmoothResult:
     """Smooth a forward run made with ``store_for_smoother=True`` (see module docstring)."""
     st = res.store
     if st is None:
         raise ValueError("res: the forward run was made with store_for_smoother=False; nothing to smooth")
-    K = len(st.idx)
+    K = st.idx.size
     n = res.layout.n
     est = res.layout.estimated_mask
     d = np.zeros((K, n))
     Pd = np.zeros((K, n))
-    Ps_next = st.P_post[-1] if st.P_post[-1] is not None else st.P_prior[-1]
-    Pd[-1] = np.diag(Ps_next)
-    for k in range(K - 2, -1, -1):
-        P_post = st.P_post[k] if st.P_post[k] is not None else st.P_prior[k]
-        trans = st.Phi[k + 1]
+    P_full = res.P_full if res.P_full.size else np.zeros((1, n, n))
+
+    def post(k):
+        return P_full[st.post[k]] if st.post[k] >= 0 else st.P_prior[k]
+
+    Ps = np.array(post(K - 1), dtype=float, order="C")
+    Pd[-1] = np.diag(Ps)
+    k = K - 2
+    while k >= 0:
+        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, est, d, Pd, Ps, k)
+        if k < 0:
+            break
+        # P_{k+1}- not positive definite: least squares for this epoch (numpy), then on
+        P_post = post(k)
+        full = P_post * st.d[k + 1][:, None]
+        full[:9] = st.A[k + 1] @ P_post
         Pp = st.P_prior[k + 1]
-        # C = P_post Phi^T Pp^-1  (Pp symmetric): solve Pp C^T = Phi P_post
-        PhiP = trans.A @ P_post  # rows 0..8 of Phi P_post
-        full = (P_post * trans.d[:, None])
-        full[:9] = PhiP
-        try:
-            L = np.linalg.cholesky(Pp)
-            Ct = np.linalg.solve(L.T, np.linalg.solve(L, full))
-        except np.linalg.LinAlgError:
-            Ct = np.linalg.lstsq(Pp, full, rcond=None)[0]
-        C = Ct.T
-        delta = st.dx[k + 1] if st.dx[k + 1] is not None else 0.0
-        dk = C @ (d[k + 1] + delta)
+        C = np.linalg.lstsq(Pp, full, rcond=None)[0].T
+        dk = C @ (d[k + 1] + st.dx[k + 1])
         dk[~est] = 0.0
         d[k] = dk
-        Ps = P_post + C @ (Ps_next - Pp) @ C.T
-        Ps = 0.5 * (Ps + Ps.T)
+        Ps = P_post + C @ (Ps - Pp) @ C.T
+        Ps = np.ascontiguousarray(0.5 * (Ps + Ps.T))
         Pd[k] = np.diag(Ps)
-        Ps_next = Ps
+        k -= 1
     idx = np.asarray(st.idx)
     lay = res.layout
     x = res.x_e[idx] + d[:, lay["dx"]]

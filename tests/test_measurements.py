@@ -152,3 +152,62 @@ def test_default_tuning_file_is_table3():
     assert t.accel_bias.sigma == pytest.approx(2e-3 * 9.80665)
     assert t.gyro_white == pytest.approx(math.radians(math.hypot(0.05, 2.5)) / 60)
     assert t.camera_misalignment.mode == "E" and t.gyro_bias.mode == "C"
+
+
+def test_propagate_covariance_equals_block_transition():
+    """The in-place propagation kernel (issue 7) equals BlockTransition.apply + q dt + the
+    Gauss-Markov blocks, symmetrised (45 states; round-off: 1e-14 of |P|)."""
+    from nav.error_state import BlockTransition, propagate_covariance
+    rng = np.random.default_rng(4)
+    n = 45
+    B = rng.normal(size=(n, n)); P = B @ B.T
+    A = np.zeros((9, n)); A[:, :27] = 0.01 * rng.normal(size=(9, 27)); A[:, :9] += np.eye(9)
+    d = np.ones(n); d[33:] = 0.98
+    q = np.zeros(n); q[3:9] = 1e-3
+    zs = np.array([33, 36, 39, 42]); Pc = np.stack([np.diag(rng.uniform(1, 2, 3)) * 1e-4 for _ in range(4)])
+    ref = BlockTransition(A, d).apply(P)
+    ref[np.arange(n), np.arange(n)] += q
+    for z in range(4):
+        ref[zs[z]:zs[z] + 3, zs[z]:zs[z] + 3] += 0.04 * Pc[z]
+    ref = 0.5 * (ref + ref.T)
+    P2 = P.copy()
+    propagate_covariance(P2, A, d, q, zs, Pc, 0.04, np.empty((n, n)))
+    np.testing.assert_allclose(P2, ref, rtol=0, atol=1e-14 * np.abs(ref).max())
+
+
+def test_gps_rows_kernel_equals_measurement_functions():
+    """The navigator's GPS kernel reproduces gps_position / gps_velocity (lever arm 1 m, rate
+    0.1 rad/s): innovations and Jacobian blocks to 1e-12."""
+    from nav.measurements import gps_position, gps_velocity
+    from nav.navigator import gps_rows_kernel
+    from nav.rotation import rotvec_to_matrix
+    rng = np.random.default_rng(5)
+    R = rotvec_to_matrix(rng.normal(size=3))
+    x, v, w, lever = rng.normal(size=3) * 1e6, rng.normal(size=3) * 1e3, rng.normal(size=3) * 0.1, rng.normal(size=3)
+    xg, vg = x + rng.normal(size=3), v + rng.normal(size=3)
+    n = 15
+    H = np.zeros((6, n)); s = np.empty(6)
+    gps_rows_kernel(x, v, R, w, lever, xg, vg, True, np.array([0, 3, 6]), H, s)
+    pp, Hx, Hpsi = gps_position(x, R, lever)
+    pv, Hv, Hpsi_v = gps_velocity(v, R, w, lever)
+    np.testing.assert_allclose(s, np.concatenate([xg - pp, vg - pv]), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(H[:3, :3], Hx); np.testing.assert_allclose(H[:3, 6:9], Hpsi, atol=1e-12)
+    np.testing.assert_allclose(H[3:, 3:6], Hv); np.testing.assert_allclose(H[3:, 6:9], Hpsi_v, atol=1e-12)
+    assert np.all(H[:3, 3:6] == 0) and np.all(H[3:, :3] == 0) and np.all(H[:, 9:] == 0)
+
+
+def test_vector_covariance_problems_equal_scalar():
+    """The vectorised check gives the scalar check's answer for good and for each kind of bad
+    covariance."""
+    from nav.measurements import vector_covariance_problem, vector_covariance_problems
+    rng = np.random.default_rng(6)
+    e = rng.normal(size=(7, 3)); e /= np.linalg.norm(e, axis=1, keepdims=True)
+    P = np.stack([1e-6 * (np.eye(3) - np.outer(u, u)) for u in e])
+    P[1, 0, 1] += 1e-9                       # non-symmetric
+    P[2, 0, 0] = np.nan                      # non-finite
+    P[3] = -P[3]                             # negative
+    P[4] = 1e-6 * np.outer(e[4], e[4])       # zero across the vector
+    P[5] = P[5] + 1e-6 * np.eye(3)           # full rank: fine
+    got = vector_covariance_problems(P, e)
+    assert list(got) == [vector_covariance_problem(P[i], e[i]) for i in range(7)]
+    assert got[0] is None and got[5] is None and got[6] is None and all(g is not None for g in got[1:5])

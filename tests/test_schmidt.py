@@ -76,3 +76,53 @@ def test_gate_and_bad_input():
     assert not r.accepted and "non-finite" in r.reason
     r = schmidt_update(P, H, -10 * np.eye(3) * np.abs(P).max(), np.zeros(3), np.ones(3, bool))
     assert not r.accepted and "positive definite" in r.reason
+
+
+def test_update_kernel_blocks_equal_textbook_joseph():
+    """Several blocks at once (issue 7): each block's NIS is the one of its own update with the
+    prior, a gated block is left out, and the accepted blocks together give the textbook Joseph
+    form with the Schmidt gain (n = 12, H sparse); agreement to round-off (1e-12 of |P|)."""
+    from nav.schmidt import GATED, OK, update_kernel
+    n = 12
+    P = _spd(n)
+    est = np.ones(n, bool); est[[4, 9, 10]] = False
+    H = np.zeros((7, n))
+    H[0:3, 0:3] = np.eye(3); H[0:3, 6:9] = rng.normal(size=(3, 3))     # like a GPS position
+    H[3:5, [1, 4, 9]] = rng.normal(size=(2, 3))                         # a 2-row vector
+    H[5:7, [2, 5, 10]] = rng.normal(size=(2, 3))                        # an outlier
+    R = np.zeros((7, 7)); R[:3, :3] = _spd(3, 0.1); R[3:5, 3:5] = _spd(2, 0.1); R[5:, 5:] = _spd(2, 0.1)
+    s = rng.normal(size=7); s[5:] = 1e3
+    offs = np.array([0, 3, 5, 7]); gates = np.full(3, chi2_gate(3, 0.999))
+    S = np.empty((7, 7)); nis = np.empty(3); code = np.empty(3, np.int64); dx = np.empty(n)
+    Pn = P.copy()
+    assert update_kernel(Pn, H, R, s, est, offs, gates, S, nis, code, dx) == OK
+    assert list(code) == [OK, OK, GATED]
+    for b in range(3):
+        sl = slice(offs[b], offs[b + 1])
+        Sb = H[sl] @ P @ H[sl].T + R[sl, sl]
+        assert nis[b] == pytest.approx(s[sl] @ np.linalg.solve(Sb, s[sl]), rel=1e-10)
+        np.testing.assert_allclose(S[sl, sl], Sb, rtol=1e-12)
+    Ha, Ra, sa = H[:5], R[:5, :5], s[:5]
+    K = P @ Ha.T @ np.linalg.inv(Ha @ P @ Ha.T + Ra)
+    K[~est] = 0
+    I_KH = np.eye(n) - K @ Ha
+    np.testing.assert_allclose(Pn, I_KH @ P @ I_KH.T + K @ Ra @ K.T, rtol=0, atol=1e-12 * np.abs(P).max())
+    np.testing.assert_allclose(dx, K @ sa, rtol=1e-10, atol=1e-14)
+    assert np.array_equal(Pn, Pn.T)
+
+
+def test_update_kernel_stacked_equals_sequential():
+    """GPS position and velocity stacked in one 6-row update equal two sequential 3-row updates
+    when everything is estimated (block-diagonal R: the Kalman update is exact in sequence);
+    round-off only (1e-10 relative, the sequential path recomputes S from the updated P)."""
+    n = 9
+    P = _spd(n)
+    H = np.zeros((6, n)); H[:3, :3] = np.eye(3); H[3:, 3:6] = np.eye(3); H[:, 6:] = rng.normal(size=(6, 3))
+    R = np.zeros((6, 6)); R[:3, :3] = _spd(3, 0.5); R[3:, 3:] = _spd(3, 0.01)
+    s = rng.normal(size=6)
+    est = np.ones(n, bool)
+    both = schmidt_update(P, H, R, s, est)
+    a = schmidt_update(P, H[:3], R[:3, :3], s[:3], est)
+    b = schmidt_update(a.P, H[3:], R[3:, 3:], s[3:] - H[3:] @ a.dx, est)
+    np.testing.assert_allclose(both.P, b.P, rtol=1e-10, atol=1e-12 * np.abs(P).max())
+    np.testing.assert_allclose(both.dx, a.dx + b.dx, rtol=1e-10)
