@@ -27,6 +27,8 @@ def add_arguments(p) -> None:
     p.add_argument("--vision", choices=("auto", "images", "vectors"), default="auto",
                    help="auto: images if the log has them, else its vectors")
     p.add_argument("--vision-config", default=None, help="vision config TOML (default: the library default)")
+    p.add_argument("--vision-rate", type=float, default=None, metavar="HZ",
+                   help="process at most HZ frames per second per camera (e.g. 5 for a 30 frames/s video; default: all)")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--rrd", default=None, help="Rerun recording (default: next to the solution, FLIGHT.rrd)")
     p.add_argument("--no-rerun", action="store_true", help="do not write a Rerun recording")
@@ -46,7 +48,8 @@ def options_from_args(args):
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     return ReplayOptions(tuning=args.tuning, t_from=args.t_from, t_to=args.t_to, cameras=cams, targets=targets,
                          init=args.init, init_file=args.init_file, smoother=args.smoother, vision=args.vision,
-                         vision_config=args.vision_config, workers=args.workers, output=args.output,
+                         vision_config=args.vision_config, vision_rate_hz=getattr(args, "vision_rate", None),
+                         workers=args.workers, output=args.output,
                          rrd="" if args.no_rerun else args.rrd, spawn=args.spawn,
                          progress=not args.quiet and not args.json)
 

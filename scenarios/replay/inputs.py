@@ -25,12 +25,15 @@ TARGETS = ("earth", "sun", "moon")
 @dataclass
 class CameraSetup:
     """Camera k (1-based): intrinsics (None without CameraInfo), nominal mount R_bc (camera -> body),
-    the image stream (None without images) and the log's vector series (None without vectors)."""
+    the image stream (None without images), the log's vector series (None without vectors) and the
+    simulator's per-frame truth (``/camera_<k>/truth``: ``t_ns``, unit vectors ``nadir_c``,
+    ``sun_c``, ``moon_c`` in the true camera frame; None for real flights)."""
     k: int
     camera: object | None
     R_bc: np.ndarray | None
     images: object | None
     vectors: dict | None
+    truth: dict | None = None
 
 
 @dataclass
@@ -200,8 +203,13 @@ def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cam
                 cam = camera_from_info(cl.info)
             except ValueError as e:
                 raise UserError(f"{p}: /camera_{k}/camera_info: {e}") from None
+        ct = None
+        if cl.truth is not None and len(cl.truth):
+            ct = {"t_ns": np.asarray(cl.truth.t_ns, np.int64)}
+            for name in ("nadir_c", "sun_c", "moon_c"):
+                ct[name] = np.asarray(getattr(cl.truth, name), float).reshape(-1, 3)
         cams[k] = CameraSetup(k, cam, R_bc, cl.images if cl.images is not None and len(cl.images) else None,
-                              _vectors_of(p, log, k))
+                              _vectors_of(p, log, k), ct)
     if want is not None:
         missing = sorted(want - set(cams))
         if missing:

@@ -21,7 +21,7 @@ Stages (timed; ``ReplayResult.timings``):
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
 (``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that
 moment: interrupted during vision, the vectors of the frames processed so far (substitute-sphere
-nadir, not yet corrected; metadata ``vectors_model = sphere``); during the filter or smoother,
+nadir, not yet corrected; the status reason says ``vectors_model = sphere``); during the filter or smoother,
 all vectors (as given to the filter) but no solution, since the filter runs in one call; during
 writing or Rerun, the complete solution.
 """
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -59,6 +60,7 @@ class ReplayOptions:
     smoother: bool = True
     vision: str = "auto"               #: "auto", "images", "vectors"
     vision_config: str | None = None
+    vision_rate_hz: float | None = None  #: process at most this many frames per second per camera (None: all)
     workers: int = 0
     output: str | None = None          #: solution MCAP (default FLIGHT.solution.mcap)
     rrd: str | None = None             #: Rerun file (default next to the solution); "" = none
@@ -81,13 +83,42 @@ class ReplayResult:
     vision_mode: str
     messages: list = field(default_factory=list)
     triad_init: object = None
+    cpu_timings: dict = field(default_factory=dict)    #: stage -> CPU seconds (this process + workers)
+    rerun_timings: dict = field(default_factory=dict)  #: Rerun stage parts -> seconds
 
 
-def _bar(total, desc, enabled):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="frame", leave=False)
+def _cpu() -> float:
+    """CPU seconds of this process and of its finished child processes (the vision workers)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+class _Progress:
+    """One progress bar over every stage: each vision frame is one step, every other stage (init,
+    filter, smoother, write, Rerun) a block of ``max(5, frames // 8)`` steps counted when it ends
+    (the filter and smoother are single calls); the description names the running stage."""
+
+    def __init__(self, n_frames: int, stages: list, enabled: bool):
+        self.block = max(5, n_frames // 8)
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+            self.bar = tqdm(total=n_frames + self.block * len(stages), desc="replay", unit="step", leave=False)
+
+    def stage(self, name: str) -> None:
+        if self.bar is not None:
+            self.bar.set_description(f"replay: {name}")
+
+    def update(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def end_stage(self) -> None:
+        self.update(self.block)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _gps_at(inp, t_ns):
@@ -166,14 +197,17 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     from scenarios.tuning_file import load_tuning
     from scenarios.replay import solution_log as SL
 
-    timings = {}
+    timings: dict = {}
+    cpu: dict = {}
     msgs = []
-    t = time.perf_counter()
+    t, c0 = time.perf_counter(), _cpu()
     bad_t = set(opt.targets) - set(I.TARGETS)
     if bad_t:
         raise UserError(f"--targets {','.join(sorted(bad_t))}: expected earth, sun or moon")
     if opt.vision not in ("auto", "images", "vectors"):
         raise UserError(f"--vision {opt.vision}: expected auto, images or vectors")
+    if opt.vision_rate_hz is not None and not (math.isfinite(opt.vision_rate_hz) and opt.vision_rate_hz > 0):
+        raise UserError(f"--vision-rate {opt.vision_rate_hz}: expected a positive number of frames per second")
     if opt.init not in (None, "truth", "given", "triad"):
         raise UserError(f"--init {opt.init}: expected truth, given or triad")
     inp = I.load_inputs(path, t_from=opt.t_from, t_to=opt.t_to, cameras=opt.cameras,
@@ -229,11 +263,17 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     imu = I.window_imu(inp.imu, a, b)
     gps = I.window_gps(inp.gps, a, b)
     timings["read"] = time.perf_counter() - t
+    cpu["read"] = _cpu() - c0
 
     out = Path(opt.output) if opt.output else inp.path.with_name(inp.path.name.removesuffix(".mcap") + ".solution.mcap")
     meta = {"scenario": inp.info.get("scenario", ""), "seed": inp.info.get("seed", ""),
             "liftoff_utc_ns": inp.info.get("liftoff_utc_ns", ""), "kind": "solution", "source_log": str(inp.path),
             "vision": mode, "window_ns": f"{a},{b}"}
+    n_frames = 0
+    if mode == "images":
+        n_frames = sum(_frames_in(inp.cameras[k].images.t_ns, a, b, opt.vision_rate_hz).size for k in cam_numbers)
+    prog = _Progress(n_frames, ["init", "filter"] + (["smoother"] if opt.smoother else []) + ["write"]
+                     + (["rerun"] if (opt.rrd != "" or opt.spawn) else []), opt.progress)
     w = LogWriter(out, meta)
     stage = "vision"
     frames = []
@@ -243,15 +283,19 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     init_method = opt.init
     try:
         # ------------------------------------------------------------------ vision
-        t = time.perf_counter()
+        t, c0 = time.perf_counter(), _cpu()
         if mode == "images":
-            frames, vectors = _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out=frames)
+            prog.stage("vision")
+            frames, vectors = _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out=frames, progress=prog.update,
+                                          on_pool_start=_preload_rerun if (opt.rrd != "" or opt.spawn) else None)
         elif mode == "vectors":
             vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
         timings["vision"] = time.perf_counter() - t
+        cpu["vision"] = _cpu() - c0
         # ------------------------------------------------------------------ init
         stage = "init"
-        t = time.perf_counter()
+        prog.stage("init")
+        t, c0 = time.perf_counter(), _cpu()
         R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
         has_pair = vectors is not None and {"hor", "sun"} <= set(np.unique(vectors.target))
         if init_method is None:
@@ -287,52 +331,74 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             if init_method == "triad":
                 init, tri_init = _triad(imu, gps, vectors, R_bc)
         timings["init"] = time.perf_counter() - t
+        cpu["init"] = _cpu() - c0
+        prog.end_stage()
         stage = "filter"
-        t = time.perf_counter()
+        prog.stage("filter")
+        t, c0 = time.perf_counter(), _cpu()
         try:
             res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc, store_for_smoother=opt.smoother)
         except ValueError as e:
             raise UserError(f"filter: {e}") from None
         timings["filter"] = time.perf_counter() - t
+        cpu["filter"] = _cpu() - c0
+        prog.end_stage()
         if opt.smoother:
             stage = "smoother"
-            t = time.perf_counter()
+            prog.stage("smoother")
+            t, c0 = time.perf_counter(), _cpu()
             from nav.smoother import rts_smooth
             sm = rts_smooth(res)
             res.store = None
             timings["smoother"] = time.perf_counter() - t
+            cpu["smoother"] = _cpu() - c0
+            prog.end_stage()
         stage = "write"
-        t = time.perf_counter()
+        prog.stage("write")
+        t, c0 = time.perf_counter(), _cpu()
         SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
         w.close()
         timings["write"] = time.perf_counter() - t
+        cpu["write"] = _cpu() - c0
+        prog.end_stage()
     except KeyboardInterrupt:
+        prog.close()
         if stage == "vision":
             vectors = _vd([(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
                            for f in frames for r in f.records if r.camera in cam_numbers])
-            w.metadata["vectors_model"] = "sphere"
+            note = "; /camera_<k>/vectors: substitute-sphere nadir (vectors_model = sphere), not corrected"
         if stage in ("vision", "init", "filter", "smoother"):
             SL.write_vectors(w, vectors, cam_numbers)
-        w.close(complete=False, reason=f"KeyboardInterrupt during {stage}")
+        w.close(complete=False, reason=f"KeyboardInterrupt during {stage}" + (note if stage == "vision" else ""))
         raise
     except BaseException:
+        prog.close()
         w.discard()
         raise
     rrd = None
+    rerun_parts: dict = {}
     if opt.rrd != "" or opt.spawn:
-        t = time.perf_counter()
+        t, c0 = time.perf_counter(), _cpu()
+        prog.stage("rerun")
         from scenarios.replay.rerun_view import record
         rrd = None if opt.spawn and not opt.rrd else Path(opt.rrd or out.with_name(
             out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
-        record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn)
+        record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn, timings=rerun_parts)
         timings["rerun"] = time.perf_counter() - t
-    return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init)
+        cpu["rerun"] = _cpu() - c0
+        prog.end_stage()
+    prog.close()
+    return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init,
+                        cpu, rerun_parts)
 
 
 def _triad(imu, gps, vectors, R_bc):
+    """TRIAD at the first epoch with both vectors after the start, back-propagated to the start
+    (003 §7.4). The back-propagation needs an IMU interval: epochs before the second IMU sample (a
+    frame at the window start) are skipped for the next one."""
     from nav.initialise import triad_initialise
     try:
-        ti = triad_initialise(imu, gps, vectors, R_bc, int(imu.t_ns[0]))
+        ti = triad_initialise(imu, gps, vectors, R_bc, int(imu.t_ns[0]), not_before_ns=int(imu.t_ns[min(1, imu.t_ns.size - 1)]))
     except ValueError as e:
         raise UserError(f"--init triad: {e}") from None
     return ti.initial, ti
@@ -357,7 +423,21 @@ def _correct_earth(vectors, imu, init, inp, R_bc):
     return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
 
 
-def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out):
+def _preload_rerun() -> None:
+    """Import rerun (about 1 s) in a daemon thread while this process waits for the vision workers.
+    Called after the workers are forked, so that no fork happens while the import holds a lock."""
+    import threading
+
+    def imp():
+        try:
+            import importlib
+            importlib.import_module("rerun.blueprint")  # imports rerun too
+        except Exception:  # noqa: BLE001 - the Rerun stage imports it again and reports the error
+            pass
+    threading.Thread(target=imp, name="preload-rerun", daemon=True).start()
+
+
+def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out, progress=None, on_pool_start=None):
     from scenarios.replay.vision_worker import FrameJob, run_vision
     from scenarios.vision_config import load_vision_config
     jobs = []
@@ -368,7 +448,7 @@ def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out):
         cams[k] = c.camera
         configs[k] = load_vision_config(opt.vision_config, camera=c.camera)
         st = c.images
-        sel = np.flatnonzero((st.t_ns >= a) & (st.t_ns <= b))
+        sel = _frames_in(st.t_ns, a, b, opt.vision_rate_hz)
         for i in sel:
             jobs.append((int(st.t_ns[i]), k, int(i)))
     jobs.sort()
@@ -385,17 +465,23 @@ def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out):
     # one config per camera only differs through the focal length; the worker takes one config
     cfg = configs[cam_numbers[0]]
     cfg = _targets_only(cfg, opt.targets)
-    fj = [FrameJob(k, i, t, inp.cameras[k].images[i], float(h[n]), float(lat[n])) for n, (t, k, i) in enumerate(jobs)]
-    bar = _bar(len(fj), "vision", opt.progress)
-    try:
-        out = run_vision(fj, cams, cfg, workers=opt.workers, progress=(bar.update if bar else None),
-                         on_result=frames_out.extend)
-    finally:
-        if bar is not None:
-            bar.close()
+    fj = [FrameJob(k, i, t, None, float(h[n]), float(lat[n])) for n, (t, k, i) in enumerate(jobs)]
+    out = run_vision(fj, cams, cfg, workers=opt.workers, progress=progress, on_result=frames_out.extend,
+                     images={k: inp.cameras[k].images for k in cam_numbers}, on_pool_start=on_pool_start)
     rows = [(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
             for f in out for r in f.records if r.target in opt.targets]
     return frames_out, _vd(rows)
+
+
+def _frames_in(t_ns, a, b, rate_hz=None) -> np.ndarray:
+    """Indices of the frames in [a, b]; with ``rate_hz`` the first frame of every 1/rate_hz bucket
+    from ``a`` on (a 30 frames/s video at 5 Hz: every 6th frame)."""
+    t = np.asarray(t_ns, np.int64)
+    sel = np.flatnonzero((t >= a) & (t <= b))
+    if rate_hz is None or sel.size == 0:
+        return sel
+    bucket = ((t[sel] - a) * float(rate_hz) // NS).astype(np.int64)
+    return sel[np.unique(bucket, return_index=True)[1]]
 
 
 def _targets_only(cfg, targets):

@@ -10,18 +10,24 @@ Entities (timelines ``utc`` = absolute time and ``mission_time`` = T+ seconds):
   with the solution's attitude and mounting, ``world/vehicle/sun`` the Sun direction from the
   ephemeris, ``world/vehicle/rcs`` the measured specific force when above 0.7 mg during the coast
   (RCS thrust, fig. 38: the logs carry no thruster state, the accelerometer sees the firing).
-  Drawn once per second of flight.
+  Drawn once per second of flight; the measured vectors at their camera's frame times.
 * ``camera_<k>/image`` each frame as its JPEG bytes (EncodedImage) with ``.../<target>/edges``
   (candidates), ``inliers``, ``outliers``, ``conic`` (fitted cone through the distorted camera model)
   and ``point`` (vector image point), 003 figs. 15, 27.
-* time series (send_columns): ``innovation/<source>/<i>`` with ``+3sigma``/``-3sigma`` (fig. 41),
-  ``angle_residual/<aided|unaided>/camera_<k>/<target>`` measured-vs-predicted angle (fig. 42),
+* time series (send_columns): ``innovation/camera_<k>/<target>/<i>`` [deg] with ``+3sigma``/``-3sigma``
+  (fig. 41), ``gps_innovation/<position|velocity>/<i>`` [m, m/s] likewise,
+  ``angle_residual/<aided|unaided>/camera_<k>/<target>`` measured-vs-predicted angle [deg] (fig. 42;
+  innovations and angles of the measurements the filter used;
+  aided: the innovation's norm, unaided: predicted with the free-inertial attitude, the solution's
+  position and the nominal mount),
   ``misalignment/camera_<k>/<axis>`` with 3 sigma (fig. 43), ``attitude_3sigma/<axis>`` (fig. 40),
-  ``aided_minus_unaided/<axis>`` (fig. 39), ``triad_minus_solution/<axis>`` (fig. 44),
+  ``aided_minus_unaided/<axis>`` (fig. 39), ``triad_minus_solution/<axis>`` and
+  ``triad_minus_unaided/<axis>`` (fig. 44 b, a),
   ``error/attitude/<axis>`` and ``error/position``, ``error/velocity`` when the log has truth.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -52,44 +58,68 @@ def _series(rec, rr, inp, path, t_ns, values):
     rec.send_columns(path, indexes=_times(rr, inp, t_ns), columns=rr.Scalars.columns(scalars=v))
 
 
-def _set_time(rec, inp, t):
-    rec.set_time("utc", timestamp=np.datetime64(int(t), "ns"))
-    rec.set_time("mission_time", duration=float(inp.mission_time(t)))
-
-
-def blueprint(cam_numbers):
+def blueprint(cam_numbers, x_e=None):
+    """The default layout: 3D scene and camera frames left, the time series of 003 figs. 39-44 as
+    tabs right. ``x_e``: the trajectory (N, 3), to aim the 3D eye at its middle from 1500 km."""
     import rerun.blueprint as rrb
-    cams = [rrb.Spatial2DView(origin=f"camera_{k}", name=f"camera {k}") for k in cam_numbers]
-    ts = [rrb.TimeSeriesView(origin="innovation", name="innovations ±3σ (fig. 41)"),
-          rrb.TimeSeriesView(origin="angle_residual", name="measured − predicted angle (fig. 42)"),
-          rrb.TimeSeriesView(origin="misalignment", name="misalignment ±3σ (fig. 43)"),
-          rrb.TimeSeriesView(origin="attitude_3sigma", name="attitude 3σ (fig. 40)"),
-          rrb.TimeSeriesView(origin="aided_minus_unaided", name="aided − unaided (fig. 39)"),
-          rrb.TimeSeriesView(origin="triad_minus_solution", name="TRIAD − solution (fig. 44)"),
-          rrb.TimeSeriesView(origin="error", name="error vs truth")]
-    left = rrb.Vertical(rrb.Spatial3DView(origin="world", name="3D (fig. 38)"),
+    cams = [rrb.Spatial2DView(origin=f"camera_{k}/image", name=f"camera {k}") for k in cam_numbers]
+    whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                  end=rrb.TimeRangeBoundary.infinite()))
+    ts = [rrb.TimeSeriesView(origin=o, name=n, axis_x=whole) for o, n in (
+          ("innovation", "camera innovations ±3σ [deg] (fig. 41)"),
+          ("angle_residual", "measured − predicted angle [deg] (fig. 42)"),
+          ("misalignment", "misalignment ±3σ [deg] (fig. 43)"),
+          ("attitude_3sigma", "attitude 3σ [deg] (fig. 40)"),
+          ("aided_minus_unaided", "aided − unaided [deg] (fig. 39)"),
+          ("triad_minus_solution", "TRIAD − aided [deg] (fig. 44 b)"),
+          ("triad_minus_unaided", "TRIAD − unaided [deg] (fig. 44 a)"),
+          ("gps_innovation", "GPS innovations ±3σ [m, m/s]"),
+          ("error", "error vs truth [deg, m, m/s]"))]
+    eye = None
+    if x_e is not None and len(x_e):
+        x = np.asarray(x_e, float)
+        mid = x[len(x) // 2]
+        up = mid / np.linalg.norm(mid)
+        side = np.cross(up, x[-1] - x[0])
+        side = side / np.linalg.norm(side) if np.linalg.norm(side) > 0 else np.cross(up, [0.0, 0.0, 1.0])
+        eye = rrb.EyeControls3D(position=mid + 1.2e6 * side + 0.9e6 * up, look_target=mid, eye_up=up)
+    left = rrb.Vertical(rrb.Spatial3DView(origin="world", name="3D (fig. 38)", eye_controls=eye),
                         rrb.Horizontal(*cams) if cams else rrb.TextDocumentView(origin="notes"), row_shares=[3, 2])
-    return rrb.Blueprint(rrb.Horizontal(left, rrb.Tabs(*ts), column_shares=[3, 2]), collapse_panels=True)
+    return rrb.Blueprint(rrb.Horizontal(left, rrb.Tabs(*ts), column_shares=[3, 2]),
+                         rrb.TimePanel(timeline="mission_time", play_state="paused", state="collapsed"),
+                         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"))
 
 
-def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *, spawn: bool = False):
-    """Write the recording to ``path`` (.rrd) and/or spawn the viewer."""
+def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *, spawn: bool = False,
+           timings: dict | None = None):
+    """Write the recording to ``path`` (.rrd) and/or spawn the viewer. Every time-varying entity is
+    sent as columns (``send_columns``), one call per entity; ``timings`` (optional dict) receives
+    the seconds spent per part (static, scene, images, series, flush)."""
+    import time
     import rerun as rr
+    tm = timings if timings is not None else {}
+    t = time.perf_counter()
     rec = rr.RecordingStream("horizon-nav", recording_id=f"replay-{Path(inp.path).stem}")
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(path).with_name("." + Path(path).name + ".tmp")
-        rec.save(str(tmp), default_blueprint=blueprint(cam_numbers))
+        rec.save(str(tmp), default_blueprint=blueprint(cam_numbers, res.x_e))
     if spawn:
-        rec.spawn(default_blueprint=blueprint(cam_numbers))
+        rec.spawn(default_blueprint=blueprint(cam_numbers, res.x_e))
     _static(rec, rr, inp, res)
-    _scene(rec, rr, inp, res, vectors, cam_numbers)
-    _images(rec, rr, inp, frames, cam_numbers)
-    _timeseries(rec, rr, inp, res, smooth, cam_numbers)
+    tm["static"] = time.perf_counter() - t
+    for name, fn, args in (("scene", _scene, (rec, rr, inp, res, vectors, cam_numbers, frames)),
+                           ("images", _images, (rec, rr, inp, frames, cam_numbers)),
+                           ("series", _timeseries, (rec, rr, inp, res, smooth, vectors, cam_numbers))):
+        t = time.perf_counter()
+        fn(*args)
+        tm[name] = time.perf_counter() - t
+    t = time.perf_counter()
     rec.flush()
     if path is not None:
         rec.disconnect()
         tmp.replace(path)
+    tm["flush"] = time.perf_counter() - t
     return path
 
 
@@ -113,93 +143,141 @@ def _K(cam):
     return to_opencv(cam)[0]
 
 
-def _scene(rec, rr, inp, res, vectors, cam_numbers):
+def _arrows(rec, rr, inp, path, t_ns, origins, vectors, lengths, colors, radius):
+    """Time-varying arrows as columns: ``lengths[i]`` arrows at ``t_ns[i]`` (0 = none shown from then
+    on); colours and radius are static (one value per arrow index)."""
+    rec.log(path, rr.Arrows3D.from_fields(colors=colors, radii=[radius]), static=True)
+    rec.send_columns(path, indexes=_times(rr, inp, t_ns),
+                     columns=rr.Arrows3D.columns(origins=np.asarray(origins, float).reshape(-1, 3),
+                                                 vectors=np.asarray(vectors, float).reshape(-1, 3)).partition(lengths))
+
+
+def _scene(rec, rr, inp, res, vectors, cam_numbers, frames=()):
+    """The 3D scene once per second of flight (fig. 38), all entities as columns."""
     t = res.t_ns
     sel = np.unique(np.searchsorted(t, np.arange(t[0], t[-1] + 1, NS)).clip(0, len(t) - 1))
+    ts = t[sel]
+    n = len(sel)
+    ones3 = np.full(n, 3)
     R = quat_to_matrix(res.q_eb[sel])
-    Ru = quat_to_matrix(res.unaided_q_eb[sel]) if len(res.unaided_q_eb) else None
+    x = res.x_e[sel]
+    ax = np.swapaxes(R, -1, -2) * AXIS_LEN                       # rows: body axes in e
+    _arrows(rec, rr, inp, "world/vehicle/aided", ts, np.repeat(x, 3, axis=0), ax, ones3, RGB, 900.0)
+    if len(res.unaided_q_eb):
+        Ru = quat_to_matrix(res.unaided_q_eb[sel])
+        _arrows(rec, rr, inp, "world/vehicle/unaided", ts, np.repeat(res.unaided_x_e[sel], 3, axis=0),
+                np.swapaxes(Ru, -1, -2) * AXIS_LEN, ones3, RGB // 2, 600.0)
     sig = np.sqrt(res.P_diag[:, res.layout["psi"]])
-    ci = np.clip(np.searchsorted(res.cov_t_ns, t[sel]), 0, len(res.cov_t_ns) - 1)
-    sun = sun_position_e(t[sel])
-    f_b = np.asarray(inp.imu.f_b)
-    fi = np.clip(np.searchsorted(inp.imu.t_ns, t[sel]), 0, len(inp.imu.t_ns) - 1)
-    vt = {}
-    if vectors is not None:
-        for n in range(len(vectors.t_ns)):
-            vt.setdefault(int(vectors.t_ns[n]) // NS, []).append(n)
-    R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
-    for j, i in enumerate(sel):
-        _set_time(rec, inp, t[i])
-        x = res.x_e[i]
-        ax = R[j].T * AXIS_LEN
-        rec.log("world/vehicle/aided", rr.Arrows3D(origins=np.tile(x, (3, 1)), vectors=ax, colors=RGB, radii=[900.0]))
-        if Ru is not None:
-            rec.log("world/vehicle/unaided", rr.Arrows3D(origins=np.tile(res.unaided_x_e[i], (3, 1)), vectors=Ru[j].T * AXIS_LEN,
-                                                         colors=RGB // 2, radii=[600.0]))
-        r3 = 3 * sig[ci[j]].max() * AXIS_LEN
-        rec.log("world/vehicle/att_3sigma", rr.Ellipsoids3D(centers=x + ax, half_sizes=np.full((3, 3), r3), colors=RGB,
-                                                            line_radii=[300.0]))
-        s = sun[j] - x
-        rec.log("world/vehicle/sun", rr.Arrows3D(origins=[x], vectors=[s / np.linalg.norm(s) * VEC_LEN],
-                                                 colors=[[255, 230, 80]], radii=[500.0]))
-        f = f_b[fi[j]]
-        if np.linalg.norm(f) > 0.7e-3 * 9.80665 and np.linalg.norm(f) < 0.05 * 9.80665:
-            rec.log("world/vehicle/rcs", rr.Arrows3D(origins=[x], vectors=[R[j] @ f / np.linalg.norm(f) * AXIS_LEN * 0.7],
-                                                     colors=[[255, 0, 255]], radii=[1200.0]))
-        else:
-            rec.log("world/vehicle/rcs", rr.Clear(recursive=False))
-        for n in vt.get(int(t[i]) // NS, []):
-            c = int(vectors.camera[n])
-            name = {"hor": "earth"}.get(str(vectors.target[n]), str(vectors.target[n]))
-            d = R[j] @ R_bc[c] @ vectors.e_c[n]
-            rec.log(f"world/vehicle/camera_{cam_numbers[c]}/{name}",
-                    rr.Arrows3D(origins=[x], vectors=[d * VEC_LEN], colors=[[0, 220, 255] if name == "earth" else [255, 150, 0]],
-                                radii=[500.0]))
+    ci = np.clip(np.searchsorted(res.cov_t_ns, ts), 0, len(res.cov_t_ns) - 1)
+    r3 = 3 * sig[ci].max(axis=1) * AXIS_LEN
+    path = "world/vehicle/att_3sigma"
+    rec.log(path, rr.Ellipsoids3D.from_fields(colors=RGB, line_radii=[300.0]), static=True)
+    rec.send_columns(path, indexes=_times(rr, inp, ts),
+                     columns=rr.Ellipsoids3D.columns(centers=(x[:, None, :] + ax).reshape(-1, 3),
+                                                     half_sizes=np.repeat(r3, 9).reshape(-1, 3)).partition(ones3))
+    s = sun_position_e(ts) - x
+    _arrows(rec, rr, inp, "world/vehicle/sun", ts, x, s / np.linalg.norm(s, axis=1, keepdims=True) * VEC_LEN,
+            np.ones(n, int), [[255, 230, 80]], 500.0)
+    fi = np.clip(np.searchsorted(inp.imu.t_ns, ts), 0, len(inp.imu.t_ns) - 1)
+    f = np.asarray(inp.imu.f_b)[fi]
+    fn = np.linalg.norm(f, axis=1)
+    on = (fn > 0.7e-3 * 9.80665) & (fn < 0.05 * 9.80665)
+    d = np.einsum("nij,nj->ni", R[on], f[on] / fn[on, None]) * AXIS_LEN * 0.7
+    _arrows(rec, rr, inp, "world/vehicle/rcs", ts, x[on], d, on.astype(int), [[255, 0, 255]], 1200.0)
+    if vectors is None or not len(vectors.t_ns):
+        return
+    # measured vectors in e with the solution's attitude and the nominal mount, at the frame times of
+    # their camera (no arrow at a frame without that vector)
+    R_bc = np.array([inp.cameras[k].R_bc for k in cam_numbers])
+    for c, k in enumerate(cam_numbers):
+        ft = np.unique(np.array([f.t_ns for f in frames if f.k == k], np.int64))
+        for tgt in np.unique(vectors.target):
+            m = (vectors.camera == c) & (vectors.target == tgt)
+            if not m.any():
+                continue
+            tv = vectors.t_ns[m]
+            frame_t = np.union1d(ft, tv) if ft.size else np.unique(tv)
+            first = np.unique(tv, return_index=True)[1]           # one vector per stamp and target
+            tv, ev = tv[first], vectors.e_c[m][first]
+            j = np.clip(np.searchsorted(t, tv), 0, len(t) - 1)
+            dv = np.einsum("nij,jk,nk->ni", quat_to_matrix(res.q_eb[j]), R_bc[c], ev) * VEC_LEN
+            name = {"hor": "earth"}.get(str(tgt), str(tgt))
+            lengths = np.isin(frame_t, tv).astype(int)
+            _arrows(rec, rr, inp, f"world/vehicle/camera_{k}/{name}", frame_t, res.x_e[j], dv, lengths,
+                    [[0, 220, 255] if name == "earth" else [255, 150, 0]], 500.0)
+
+
+_OVERLAY = (("edges", [150, 150, 150], 1.0), ("inliers", [0, 255, 0], 1.5), ("outliers", [255, 0, 0], 1.5),
+            ("conic", None, 1.5), ("point", None, 8.0))
 
 
 def _images(rec, rr, inp, frames, cam_numbers):
-    if frames:
-        for f in frames:
-            if f.k not in cam_numbers:
+    """Each frame as its JPEG bytes (EncodedImage) with the front end's overlay, one column send per
+    entity; a frame without an overlay part shows none (empty row)."""
+    for k in cam_numbers:
+        fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
+        if not fr:
+            continue
+        st = inp.cameras[k].images
+        t = np.array([f.t_ns for f in fr], np.int64)
+        idx = np.clip(np.searchsorted(st.t_ns, t), 0, len(st) - 1)
+        base = f"camera_{k}/image"
+        rec.log(base, rr.EncodedImage.from_fields(media_type="image/jpeg"), static=True)
+        rec.send_columns(base, indexes=_times(rr, inp, t),
+                         columns=rr.EncodedImage.columns(blob=[st[int(i)] for i in idx]))
+        for target in ("earth", "sun", "moon"):
+            ov = [f.overlay.get(target, {}) for f in fr]
+            if not any(ov):
                 continue
-            _set_time(rec, inp, f.t_ns)
-            st = inp.cameras[f.k].images
-            i = int(np.searchsorted(st.t_ns, f.t_ns))
-            base = f"camera_{f.k}/image"
-            rec.log(base, rr.EncodedImage(contents=st[i], media_type="image/jpeg"))
-            for target in ("earth", "sun", "moon"):
-                o = f.overlay.get(target, {})
-                p = f"{base}/{target}"
-                col = [0, 220, 255] if target == "earth" else [255, 150, 0]
-                for name, arche in (("edges", lambda a: rr.Points2D(a, colors=[[150, 150, 150]], radii=[1.0])),
-                                    ("inliers", lambda a: rr.Points2D(a, colors=[[0, 255, 0]], radii=[1.5])),
-                                    ("outliers", lambda a: rr.Points2D(a, colors=[[255, 0, 0]], radii=[1.5])),
-                                    ("conic", lambda a: rr.LineStrips2D(_split(a), colors=[col], radii=[1.5])),
-                                    ("point", lambda a: rr.Points2D(a, colors=[col], radii=[8.0]))):
-                    if name in o and len(o[name]):
-                        rec.log(f"{p}/{name}", arche(o[name]))
-                    else:
-                        rec.log(f"{p}/{name}", rr.Clear(recursive=False))
+            col = [0, 220, 255] if target == "earth" else [255, 150, 0]
+            for name, colour, radius in _OVERLAY:
+                p = f"{base}/{target}/{name}"
+                parts = [np.asarray(o.get(name, np.zeros((0, 2))), np.float32).reshape(-1, 2) for o in ov]
+                if name == "conic":
+                    strips = [_split(a) for a in parts]
+                    rec.log(p, rr.LineStrips2D.from_fields(colors=[col], radii=[radius]), static=True)
+                    flat = [s for ss in strips for s in ss]
+                    rec.send_columns(p, indexes=_times(rr, inp, t),
+                                     columns=rr.LineStrips2D.columns(strips=flat).partition([len(ss) for ss in strips]))
+                else:
+                    rec.log(p, rr.Points2D.from_fields(colors=[colour or col], radii=[radius]), static=True)
+                    rec.send_columns(p, indexes=_times(rr, inp, t),
+                                     columns=rr.Points2D.columns(positions=np.concatenate(parts)).partition(
+                                         [len(a) for a in parts]))
 
 
 def _split(poly):
+    """Finite runs of a polyline (NaN marks the cut points) as separate strips of >= 2 points."""
+    poly = np.asarray(poly).reshape(-1, 2)
+    if not len(poly):
+        return []
     ok = np.all(np.isfinite(poly), axis=1)
-    segs, cur = [], []
-    for p, g in zip(poly, ok):
-        if g:
-            cur.append(p)
-        elif cur:
-            segs.append(np.array(cur)); cur = []
-    if cur:
-        segs.append(np.array(cur))
-    return [s for s in segs if len(s) > 1]
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
+    return [poly[a:b] for a, b in zip(edges[::2], edges[1::2]) if b - a > 1]
 
 
-def _timeseries(rec, rr, inp, res, smooth, cam_numbers):
-    # innovations with +-3 sigma (fig. 41) and angle residuals (fig. 42)
+def _predicted_c(inp, q_eb, x_e, t_ns, target, R_bc):
+    """Unit vector to ``target`` ('hor' geocentric nadir, 'sun', 'moon') in the camera frame with
+    attitude ``q_eb`` and position ``x_e`` (003 eq. (39))."""
+    from nav.ephemeris import moon_direction_e, sun_direction_e
+    if target == "hor":
+        d = -x_e / np.linalg.norm(x_e, axis=1, keepdims=True)
+    elif target == "sun":
+        d = sun_direction_e(t_ns, x_e)
+    else:
+        d = moon_direction_e(t_ns, x_e)
+    R_eb = quat_to_matrix(q_eb)
+    return np.einsum("ji,nkj,nk->ni", R_bc, R_eb, d)
+
+
+def _timeseries(rec, rr, inp, res, smooth, vectors, cam_numbers):
+    # innovations with +-3 sigma (fig. 41) and angle residuals (fig. 42): the measurements the filter
+    # used (rejected ones are in the solution log's /nav/measurements with their reason)
     groups = {}
     for inn in res.innovations:
-        groups.setdefault(source_name(inn.kind, inn.camera, cam_numbers), []).append(inn)
+        if inn.accepted:
+            groups.setdefault(source_name(inn.kind, inn.camera, cam_numbers), []).append(inn)
+    used = {(int(i.t_ns), i.kind, int(i.camera)) for i in res.innovations if i.accepted}
     for src, lst in groups.items():
         lst = [i for i in lst if np.all(np.isfinite(i.s))]
         if not lst:
@@ -207,15 +285,31 @@ def _timeseries(rec, rr, inp, res, smooth, cam_numbers):
         t = np.array([i.t_ns for i in lst], np.int64)
         s = np.array([i.s for i in lst])
         S = np.array([np.sqrt(np.clip(np.diag(i.S), 0, None)) for i in lst])
+        cam = src.startswith("camera_")
+        base, f = ("innovation/" + src, math.degrees(1.0)) if cam else ("gps_innovation/" + src.removeprefix("gps/"), 1.0)
         for c in range(s.shape[1]):
-            _series(rec, rr, inp, f"innovation/{src}/{c}", t, s[:, c])
-            _series(rec, rr, inp, f"innovation/{src}/{c}_+3sigma", t, 3 * S[:, c])
-            _series(rec, rr, inp, f"innovation/{src}/{c}_-3sigma", t, -3 * S[:, c])
+            _series(rec, rr, inp, f"{base}/{c}", t, f * s[:, c])
+            _series(rec, rr, inp, f"{base}/{c}_+3sigma", t, 3 * f * S[:, c])
+            _series(rec, rr, inp, f"{base}/{c}_-3sigma", t, -3 * f * S[:, c])
         if src.startswith("camera_"):
             _series(rec, rr, inp, f"angle_residual/aided/{src}", t, np.degrees(np.linalg.norm(s, axis=1)))
-    # unaided angle residuals: predicted with the free-inertial attitude
-    if len(res.unaided_q_eb) and hasattr(res, "_vectors_for_view"):
-        pass
+    # unaided angle residuals (fig. 42 a): the measured vectors against the ones predicted with the
+    # free-inertial attitude (GPS-aided position, nominal mount), the vectors the filter used
+    if len(res.unaided_q_eb) and vectors is not None and len(vectors.t_ns):
+        from scenarios.replay.inputs import angle_deg
+        j = np.clip(np.searchsorted(res.t_ns, vectors.t_ns), 0, len(res.t_ns) - 1)
+        ok = np.array([(int(t), str(g), int(c)) in used for t, g, c in zip(vectors.t_ns, vectors.target, vectors.camera)],
+                      bool)
+        for c, k in enumerate(cam_numbers):
+            for tgt in np.unique(vectors.target):
+                m = (vectors.camera == c) & (vectors.target == tgt) & ok
+                if not m.any():
+                    continue
+                jm = j[m]
+                e = _predicted_c(inp, res.unaided_q_eb[jm], res.x_e[jm], res.t_ns[jm], str(tgt), inp.cameras[k].R_bc)
+                name = {"hor": "earth"}.get(str(tgt), str(tgt))
+                _series(rec, rr, inp, f"angle_residual/unaided/camera_{k}/{name}", vectors.t_ns[m],
+                        angle_deg(vectors.e_c[m], e))
     # misalignment (fig. 43)
     for c, k in enumerate(cam_numbers):
         if len(res.misalignment_t_ns):
@@ -242,12 +336,17 @@ def _timeseries(rec, rr, inp, res, smooth, cam_numbers):
         d = np.degrees(matrix_to_rotvec(quat_to_matrix(res.triad_q_eb) @ np.swapaxes(quat_to_matrix(res.q_eb[j]), -1, -2)))
         for a in range(3):
             _series(rec, rr, inp, f"triad_minus_solution/{AXES[a]}", res.triad_t_ns, d[:, a])
+        if len(res.unaided_q_eb):       # fig. 44 a: TRIAD - unaided
+            d = np.degrees(matrix_to_rotvec(quat_to_matrix(res.triad_q_eb)
+                                            @ np.swapaxes(quat_to_matrix(res.unaided_q_eb[j]), -1, -2)))
+            for a in range(3):
+                _series(rec, rr, inp, f"triad_minus_unaided/{AXES[a]}", res.triad_t_ns, d[:, a])
     tr = inp.truth
     if tr is not None:
-        for name, t, x, v, q in (("forward", res.cov_t_ns, res.x_e[ci], res.v_e[ci], res.q_eb[ci]),
-                                 ("smoothed", *(() if smooth is None else (smooth.t_ns, smooth.x_e, smooth.v_e, smooth.q_eb)))):
-            if smooth is None and name == "smoothed":
-                continue
+        sols = [("forward", res.cov_t_ns, res.x_e[ci], res.v_e[ci], res.q_eb[ci])]
+        if smooth is not None:
+            sols.append(("smoothed", smooth.t_ns, smooth.x_e, smooth.v_e, smooth.q_eb))
+        for name, t, x, v, q in sols:
             j = np.searchsorted(tr.t_ns, t)
             ok = j < tr.t_ns.size
             ok[ok] = tr.t_ns[j[ok]] == t[ok]

@@ -70,7 +70,7 @@ def write_solution(w, res, smooth, cam_numbers, *, vectors=None) -> None:
     hit = (pos < len(res.meas_t_ns)) & (res.meas_t_ns[np.minimum(pos, max(len(res.meas_t_ns) - 1, 0))] == res.cov_t_ns) \
         if len(res.meas_t_ns) else np.zeros(K, bool)
     if hit.any():
-        cov[hit] = res.P_full[pos[hit]][:, idx][:, :, idx]
+        cov[hit] = res.P_full[pos[hit][:, None, None], idx[None, :, None], idx[None, None, :]]  # one gather
     # estimated parameters: calibration now (final) is all NavResult keeps for the IMU errors;
     # misalignments are kept per update epoch
     state = np.zeros((K, m))

@@ -58,6 +58,48 @@ def summarize(rr) -> dict:
                            "pos_m": float(3 * sig[lay["dx"]].max()), "vel_mps": float(3 * sig[lay["dv"]].max())}
     if inp.truth is not None:
         out["truth"] = truth_errors(rr)
+    ve = vector_errors(rr)
+    if ve:
+        out["vector_errors"] = ve
+    return out
+
+
+TRUTH_FIELD = {"hor": "nadir_c", "sun": "sun_c", "moon": "moon_c"}
+
+
+def vector_errors(rr) -> dict:
+    """Angles [deg] between the vectors given to the filter and the simulator's per-frame truth
+    (``/camera_<k>/truth``, true camera frame, same stamp), per camera and target: n, mean, RMS,
+    median, 95th percentile, max, and the mean error vector's angle (the bias; the rest is scatter).
+    Empty without camera truth. For image vectors these are the front end's vectors after the
+    geocentric correction (:func:`scenarios.replay.vision_worker.geocentric_correction`)."""
+    v = rr.vectors
+    out: dict = {}
+    if v is None or not len(v.t_ns):
+        return out
+    for c, k in enumerate(rr.cam_numbers):
+        ct = rr.inputs.cameras[k].truth
+        if ct is None:
+            continue
+        for tgt in np.unique(v.target):
+            m = (v.camera == c) & (v.target == tgt)
+            field = TRUTH_FIELD.get(str(tgt))
+            if not m.any() or field is None:
+                continue
+            j = np.searchsorted(ct["t_ns"], v.t_ns[m])
+            ok = j < ct["t_ns"].size
+            ok[ok] = ct["t_ns"][j[ok]] == v.t_ns[m][ok]
+            if not ok.any():
+                continue
+            e = v.e_c[m][ok]
+            tr = ct[field][j[ok]]
+            a = np.degrees(np.arccos(np.clip(np.sum(e * tr, axis=1), -1.0, 1.0)))
+            bias = np.degrees(np.linalg.norm(np.mean(e - tr, axis=0)))
+            name = {"hor": "earth"}.get(str(tgt), str(tgt))
+            out[f"camera_{k}/{name}"] = {"n": int(ok.sum()), "unmatched": int((~ok).sum()), "mean_deg": float(a.mean()),
+                                         "rms_deg": float(np.sqrt(np.mean(a ** 2))), "median_deg": float(np.median(a)),
+                                         "p95_deg": float(np.percentile(a, 95)), "max_deg": float(a.max()),
+                                         "bias_deg": float(bias)}
     return out
 
 
@@ -146,10 +188,17 @@ def format_table(s: dict) -> str:
                          f"{d['pos_rms_m']:>9.2f} {d['pos_max_m']:>9.2f} {d['vel_rms_mps']:>9.3f}")
         if "att_final_inside_3sigma" in t.get("forward", {}):
             L.append(f"final attitude error inside its 3 sigma (per axis): {t['forward']['att_final_inside_3sigma']}")
+    if s.get("vector_errors"):
+        L.append("")
+        L.append("vectors given to the filter against the camera truth (/camera_<k>/truth) [deg]:")
+        L.append(f"{'vector':<16} {'n':>5} {'mean':>7} {'RMS':>7} {'median':>7} {'95%':>7} {'max':>7} {'bias':>7}")
+        for k, d in s["vector_errors"].items():
+            L.append(f"{k:<16} {d['n']:>5} {d['mean_deg']:>7.3f} {d['rms_deg']:>7.3f} {d['median_deg']:>7.3f} "
+                     f"{d['p95_deg']:>7.3f} {d['max_deg']:>7.3f} {d['bias_deg']:>7.3f}")
     L.append("")
     L.append("time per stage [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()))
     L.append(f"solution: {s['solution']}" + (f"   recording: {s['rrd']}  (open with: rerun {s['rrd']})" if s["rrd"] else ""))
     return "\n".join(L)
 
 
-__all__ = ["summarize", "format_table", "truth_errors", "attitude_error", "math"]
+__all__ = ["summarize", "format_table", "truth_errors", "vector_errors", "attitude_error", "math"]

@@ -1,7 +1,8 @@
 """The vision front end over the camera frames of a log, in parallel worker processes.
 
-Frames are sent to a :class:`concurrent.futures.ProcessPoolExecutor` in chunks (the JPEG bytes as
-stored, with the frame's position prior); each worker decodes (``cv2.imdecode``) and runs
+Frames are sent to a :class:`concurrent.futures.ProcessPoolExecutor` in chunks of 16 (the frame's
+index in its image stream and its position prior; forked workers read the JPEG bytes from the log
+themselves, see :func:`run_vision`); each worker decodes (``cv2.imdecode``) and runs
 :func:`vision.frontend.process_frame`, and returns the vector records plus a compact overlay for
 the Rerun view (edge candidates, inliers, fitted conic and vector image points in distorted pixel
 space, 003 figs. 15, 27) and the stage timings. With one worker (or one core) the frames are
@@ -32,7 +33,7 @@ class FrameJob:
     k: int
     index: int           #: frame index in the camera's image stream
     t_ns: int
-    jpeg: bytes
+    jpeg: bytes | None   #: None: read from the image stream given to run_vision (in the worker)
     height_m: float
     lat: float
 
@@ -98,7 +99,8 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
     config = config if config is not None else _STATE["config"]
     mask = mask if mask is not None else _STATE.get("masks", {}).get(job.k)
     t0 = time.perf_counter()
-    img = cv2.imdecode(np.frombuffer(job.jpeg, np.uint8), cv2.IMREAD_COLOR)
+    jpeg = job.jpeg if job.jpeg is not None else _STATE["images"][job.k][job.index]
+    img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
     t_dec = time.perf_counter() - t0
     if img is None:
         return FrameOutput(job.k, job.t_ns, [], {"frame": "JPEG could not be decoded"}, {}, {"decode": t_dec})
@@ -118,38 +120,99 @@ def _chunk(jobs):
     return [process_one(j) for j in jobs]
 
 
+def _fork_context():
+    """The ``fork`` start method where the platform has it (Linux, macOS): the workers inherit the
+    parent's imported modules, its loaded numba kernels (``cache=True``: loaded from disk once, in
+    the parent, by the warm-up frame) and the log's image streams, so neither a start-up import, a
+    kernel load nor the JPEG bytes cross the pipe. ``None`` elsewhere (spawn: the JPEG bytes are
+    sent with the jobs and every worker imports and loads the kernels once in its initializer)."""
+    import multiprocessing as mp
+    return mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+
+
+def _warm() -> None:
+    """Import the front end and load its numba kernels (spawned workers: once per worker)."""
+    import importlib
+    for name in ("vision.frontend", "vision.binarize", "vision.borders"):
+        importlib.import_module(name)
+
+
+def _init_spawned(cameras, config, masks) -> None:
+    _init(cameras, config, masks)
+    _warm()
+
+
 def run_vision(jobs: list, cameras: dict, config, *, workers: int = 0, masks: dict | None = None,
-               chunk_size: int = 8, progress=None, on_result=None) -> list:
+               chunk_size: int = 16, progress=None, on_result=None, images: dict | None = None,
+               on_pool_start=None) -> list:
     """Process ``jobs`` (list of :class:`FrameJob`); returns the :class:`FrameOutput` list in job
-    order. ``workers``: 0 = one per core (at most 8), 1 = in this process. ``progress(n)`` is called
-    with the number of frames finished; ``on_result(outputs)`` with each finished chunk (in order)."""
+    order.
+
+    ``workers``: 0 = one per core (at most 8), 1 = in this process. ``images``: camera number ->
+    image stream (``stream[index]`` -> JPEG bytes, e.g. :class:`scenarios.log_reader.ImageStream`)
+    for jobs whose ``jpeg`` is ``None``; forked workers read the frames from it themselves.
+    ``chunk_size`` frames go to a worker per task. ``progress(n)`` is called with the number of
+    frames finished; ``on_result(outputs)`` with each finished chunk (in order).
+
+    The first frame is processed here before the pool starts (warm-up: imports and numba kernels
+    are loaded once and inherited by forked workers). ``on_pool_start()`` is called once the
+    workers exist (this process then only waits: e.g. start a thread that imports Rerun).
+    """
     masks = masks or {}
+    images = images or {}
     if workers <= 0:
         workers = min(os.cpu_count() or 1, 8)
+    missing = {j.k for j in jobs if j.jpeg is None and j.k not in images}
+    if missing:
+        raise ValueError(f"run_vision: jobs of camera(s) {sorted(missing)} have no JPEG bytes and no image stream")
     out: list = []
-    if workers == 1 or len(jobs) <= chunk_size:
-        _init(cameras, config, masks)
+    _init(cameras, config, masks)
+    _STATE["images"] = images
+    try:
+        _run(jobs, cameras, config, masks, images, workers, chunk_size, out, progress, on_result, on_pool_start)
+    finally:
+        _STATE.pop("images", None)     # do not keep the log's data alive after the run
+    return out
+
+
+def _run(jobs, cameras, config, masks, images, workers, chunk_size, out, progress, on_result, on_pool_start):
+    def emit(res):
+        out.extend(res)
+        if on_result:
+            on_result(res)
+        if progress:
+            progress(len(res))
+
+    if workers == 1 or len(jobs) <= chunk_size + 1:
         for j in jobs:
-            r = process_one(j)
-            out.append(r)
-            if on_result:
-                on_result([r])
-            if progress:
-                progress(1)
-        return out
-    chunks = [jobs[i:i + chunk_size] for i in range(0, len(jobs), chunk_size)]
-    with ProcessPoolExecutor(max_workers=workers, initializer=_init, initargs=(cameras, config, masks)) as ex:
+            emit([process_one(j)])
+        return
+    emit([process_one(jobs[0])])          # warm-up, in this process
+    rest = jobs[1:]
+    ctx = _fork_context()
+    if ctx is None:                       # spawned workers: ship the bytes
+        rest = [j if j.jpeg is not None else FrameJob(j.k, j.index, j.t_ns, images[j.k][j.index], j.height_m, j.lat)
+                for j in rest]
+        import multiprocessing as mp
+        kw = {"mp_context": mp.get_context("spawn"), "initializer": _init_spawned, "initargs": (cameras, config, masks)}
+    else:
+        kw = {"mp_context": ctx, "initializer": _init_forked}
+    chunks = [rest[i:i + chunk_size] for i in range(0, len(rest), chunk_size)]
+    with ProcessPoolExecutor(max_workers=min(workers, len(chunks)), **kw) as ex:
         try:
-            for res in ex.map(_chunk, chunks):
-                out.extend(res)
-                if on_result:
-                    on_result(res)
-                if progress:
-                    progress(len(res))
+            it = ex.map(_chunk, chunks)    # submits every chunk: with fork, the workers are forked here,
+            if on_pool_start:              # before the executor's manager thread starts
+                on_pool_start()
+            for res in it:
+                emit(res)
         except BaseException:
             ex.shutdown(wait=False, cancel_futures=True)
             raise
-    return out
+
+
+def _init_forked() -> None:
+    import cv2
+    cv2.setNumThreads(1)
 
 
 def geocentric_correction(e_c: np.ndarray, x_e: np.ndarray, R_ce: np.ndarray) -> np.ndarray:
