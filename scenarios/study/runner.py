@@ -4,7 +4,15 @@
 Deterministic: the same (scenario, tuning, run config, seed) gives the same numbers bit for bit,
 in any process, in any order. The random streams are those of :mod:`scenarios.simulate` (IMU 1,
 GPS 2, camera k 100 + k: one per sensor) plus, here, the vector errors of camera k and target j
-(``VECTOR_STREAM + 10 k + j``) and the initial error (``INIT_STREAM``).
+(``VECTOR_STREAM + 10 k + j``), their white part (``WHITE_STREAM + 10 k + j``) and the initial
+error (``INIT_STREAM``).
+
+What the filter is told matches what is drawn (a consistency study tests a *matched* filter):
+each vector carries the P_c its error was drawn with (the Gauss-Markov part, considered by the
+filter's zeta states with the same T_c), plus white noise of ``run.white_sigma`` per tangent axis,
+by default the tuning's ``vector_white`` (003 eq. (49)'s Q_tuning, which the filter adds to every
+vector); the initial errors are drawn with the ``run.init_*`` sigmas (the study files set them
+equal to the tuning's).
 
 Caches (per process; a worker keeps them across runs):
 
@@ -36,7 +44,7 @@ from scenarios.study.metrics import run_metrics
 from scenarios.study.studyfile import RunConfig, RunSpec
 from vision.error_model import HORIZON_NOISE, SUN_NOISE, bloomed_alpha, draw_vector_errors, predict_vision
 
-VECTOR_STREAM, INIT_STREAM = 300, 400
+VECTOR_STREAM, INIT_STREAM, WHITE_STREAM = 300, 400, 500
 TARGETS = ("hor", "sun")
 SUN_RADIUS_M = 6.957e8  #: nominal solar radius (IAU 2015 B3)
 
@@ -107,9 +115,30 @@ def _nominal_covariances(sc, truth, ci: int, cam_cfg, cam_truth_nominal, cam_mod
     return out
 
 
-def simulated_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS) -> VectorData:
+def _add_white(e: np.ndarray, sigma: float, rng) -> np.ndarray:
+    """Unit vectors ``e`` (K, 3) plus white noise of ``sigma`` per tangent axis, renormalised (the
+    noise the filter's ``vector_white`` describes: ``R = sigma^2 I`` projected on the tangent plane)."""
+    if sigma <= 0 or e.shape[0] == 0:
+        return e
+    a = np.where(np.abs(e[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    t1 = np.cross(e, a)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(e, t1)
+    w = rng.standard_normal((e.shape[0], 2)) * sigma
+    v = e + w[:, :1] * t1 + w[:, 1:] * t2
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def white_sigma(rc: RunConfig, tun) -> float:
+    """White vector noise drawn per tangent axis: ``rc.white_sigma``, or the tuning's ``vector_white``
+    when negative (matched)."""
+    return float(tun.vector_white) if rc.white_sigma < 0 else float(rc.white_sigma)
+
+
+def simulated_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS, white: float = 0.0) -> VectorData:
     """Vectors from truth plus the vision error model (see the module docstring) for every camera
-    of the run (``cams`` from :func:`scenarios.simulate.simulate_cameras`)."""
+    of the run (``cams`` from :func:`scenarios.simulate.simulate_cameras`), plus white noise of
+    ``white`` per tangent axis (own random stream, so the Gauss-Markov draws do not depend on it)."""
     from scenarios import camera_geometry as cg
     from nav import ephemeris
     rows_t, rows_c, rows_g, rows_e, rows_P = [], [], [], [], []
@@ -146,7 +175,8 @@ def simulated_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS
             drawn = draw_vector_errors(e, rc.error_scale ** 2 * P, ct.t[ii], rng, T_c=rc.correlation_time_s,
                                        gm_fraction=rc.gm_fraction)
             rows_t.append(cam.t_ns[ii]); rows_c.append(np.full(ii.size, ci)); rows_g.append(np.full(ii.size, target))
-            rows_e.append(drawn.e_meas); rows_P.append(rc.report_scale ** 2 * P)
+            e_meas = _add_white(drawn.e_meas, white, S.rng_for(seed, WHITE_STREAM + 10 * cam.k + j))
+            rows_e.append(e_meas); rows_P.append(rc.report_scale ** 2 * P)
     if not rows_t:
         return VectorData(np.zeros(0, np.int64), np.zeros(0, int), np.zeros(0, "<U3"), np.zeros((0, 3)),
                           np.zeros((0, 3, 3)))
@@ -156,7 +186,7 @@ def simulated_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS
                       np.concatenate(rows_P)[o])
 
 
-def exact_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS) -> VectorData:
+def exact_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS, white: float = 0.0) -> VectorData:
     """Vectors from :func:`scenarios.truth_vectors.flight_truth_vectors` (covariance predicted per
     run for the true mounting), restricted to the window; ``error_scale`` scales the drawn error
     (``e_true + s (e_meas - e_true)``, renormalised) and ``report_scale`` the reported P."""
@@ -171,6 +201,7 @@ def exact_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS) ->
     e_true = tv.e_true[np.isin(tv.camera, [c.k for c in cams])][m]
     e = e_true + rc.error_scale * (vd.e_c[m] - e_true)
     e /= np.linalg.norm(e, axis=1, keepdims=True)
+    e = _add_white(e, white, S.rng_for(seed, WHITE_STREAM))
     return VectorData(vd.t_ns[m], vd.camera[m], vd.target[m], e, rc.report_scale ** 2 * vd.P_c[m])
 
 
@@ -203,9 +234,9 @@ def run_one(cfg: dict, spec: RunSpec, metrics=("nees", "nis", "rms", "misalignme
     if rc.vectors == "truth" and sc.cameras:
         cams = S.simulate_cameras(sc, tr, seed)
         if rc.vector_model == "exact":
-            vectors = exact_vectors(sc, tr, cams, seed, rc, tuple(tun.targets))
+            vectors = exact_vectors(sc, tr, cams, seed, rc, tuple(tun.targets), white_sigma(rc, tun))
         else:
-            vectors = simulated_vectors(sc, tr, cams, seed, rc, tuple(tun.targets))
+            vectors = simulated_vectors(sc, tr, cams, seed, rc, tuple(tun.targets), white_sigma(rc, tun))
         R_bc = [c.R_bc_nominal for c in cams]
         psi_c = np.array([c.psi_c for c in cams])
     i0 = truth_idx[start]

@@ -92,6 +92,9 @@ class RunConfig:
         Share of the predicted vision covariance carried by the Gauss-Markov part (the rest white).
     correlation_time_s : float
         T_c of the simulated vector errors (003 §6.3: 20 s).
+    white_sigma : float
+        White vector error drawn per tangent axis on top of the vision error model; negative (the
+        default): the tuning's ``vector_white``, i.e. exactly the white noise the filter is told.
     error_scale : float
         True vector errors are drawn with ``error_scale^2`` times the predicted covariance.
     report_scale : float
@@ -116,6 +119,7 @@ class RunConfig:
     init_vel_sigma_mps: float = 0.1
     gm_fraction: float = 1.0
     correlation_time_s: float = 20.0
+    white_sigma: float = -1.0
     error_scale: float = 1.0
     report_scale: float = 1.0
     sun_bloom: float = 2.0

@@ -25,8 +25,10 @@ runs = {runs}
 [set]
 "run.t_end_s" = {t_end}
 "tuning.accel_white" = 4.903325e-4
-"tuning.gyro_white" = 5.817764e-4
+"tuning.gyro_white" = 1.454441e-4
 "tuning.vector_white" = 1.0e-4
+"tuning.init_att_sigma" = 8.726646e-3
+"run.init_att_sigma_deg" = 0.5
 """)
     return load_study(p)
 
