@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import pytest
+
+from scenarios.atomic import atomic_write_text
 
 _RESULTS: list[dict] = []
 BENCH_FILE = Path(os.environ.get("HORIZON_NAV_BENCH_FILE", "bench.json"))
@@ -58,7 +59,4 @@ def pytest_sessionfinish(session, exitstatus):
             old = []
     names = {r["name"] for r in _RESULTS}
     rows = [r for r in old if r.get("name") not in names] + _RESULTS
-    fd, tmp = tempfile.mkstemp(dir=BENCH_FILE.parent or ".", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(sorted(rows, key=lambda r: r["name"]), f, indent=1)
-    os.replace(tmp, BENCH_FILE)
+    atomic_write_text(BENCH_FILE, json.dumps(sorted(rows, key=lambda r: r["name"]), indent=1))
