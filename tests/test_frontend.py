@@ -22,24 +22,11 @@ from vision import mask as vmask
 from vision.camera import atek_camera, unproject
 from vision.frontend import (FramePrior, TargetConfig, VisionConfig, _side_score, default_config,
                              process_frame)
+from tests.poses import pose
 
 T0 = timescales.parse_utc("2019-06-13T02:24:40Z")  # ATEK T+220 s
 SUN = ephemeris.sun_position_e(T0)
 CAM = atek_camera()
-
-
-def pose(az_deg, down_deg=20.0, h=230e3, lat=67.89, lon=21.10, roll_deg=0.0):
-    """R_ec, x_e of a camera at (lat, lon, h) looking down_deg below the horizontal at az_deg."""
-    la, lo = math.radians(lat), math.radians(lon)
-    x = earth.geodetic_to_ecef(la, lo, h)
-    az, el = math.radians(az_deg), -math.radians(down_deg)
-    z_n = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), -math.sin(el)])
-    x_n = np.cross([0.0, 0.0, 1.0], z_n)
-    x_n /= np.linalg.norm(x_n)
-    R_nc = np.column_stack([x_n, np.cross(z_n, x_n), z_n])
-    r = math.radians(roll_deg)
-    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
-    return earth.R_en(la, lo) @ R_nc @ Rz, np.asarray(x)
 
 
 def geometric_config() -> VisionConfig:

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from scenarios import render
-from tests.test_frontend import CAM, angle_deg, pose
+from tests.poses import pose
+from tests.test_frontend import CAM, angle_deg
 from vision.camera import unproject
 from vision.frontend import FramePrior, _pixel_angle, default_config, process_frame
 from vision.limb import LimbEdgeConfig, limb_edge_points, sun_elevation

@@ -19,7 +19,7 @@ from vision.frontend import FramePrior, default_config, process_frame
 from vision.nadir import nadir_from_horizon
 from vision.oblate import ellipsoid_limb_rays, ellipsoid_model, gaussian_radius, sphere_model
 
-from tests.test_frontend import pose
+from tests.poses import pose
 
 CAM = atek_camera()
 

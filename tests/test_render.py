@@ -12,6 +12,7 @@ from scenarios import render
 from scenarios.commands.render import parse_mission_time
 from scenarios.errors import UserError
 from vision.camera import FisheyeCamera, camera_from_dict, from_fov, unproject
+from tests.poses import pose
 
 T0 = timescales.parse_utc("2019-06-13T02:24:40Z")  # ATEK T+220 s
 SUN = ephemeris.sun_position_e(T0)
@@ -21,21 +22,6 @@ MOON = ephemeris.moon_position_e(T0)
 def small_camera(w=480, h=270) -> FisheyeCamera:
     """ATEK-like lens (94.4 deg horizontal, OpenCV fisheye D = [0.08, -0.01, 0, 0]) at low resolution."""
     return from_fov(w, h, 94.4, k_shape=(1.0, 0.08, -0.01, 0.0, 0.0), name="small")
-
-
-def pose(az_deg, down_deg=20.0, h=230e3, lat=67.89, lon=21.10, roll_deg=0.0):
-    """Camera at (lat, lon, h) looking ``down_deg`` below the local horizontal at azimuth ``az_deg``,
-    image x horizontal (optionally rolled about the optical axis)."""
-    la, lo = math.radians(lat), math.radians(lon)
-    x = earth.geodetic_to_ecef(la, lo, h)
-    az, el = math.radians(az_deg), -math.radians(down_deg)
-    z_n = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), -math.sin(el)])
-    x_n = np.cross([0.0, 0.0, 1.0], z_n)
-    x_n /= np.linalg.norm(x_n)
-    R_nc = np.column_stack([x_n, np.cross(z_n, x_n), z_n])
-    r = math.radians(roll_deg)
-    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
-    return earth.R_en(la, lo) @ R_nc @ Rz, x
 
 
 def hits_ellipsoid(x, d):
