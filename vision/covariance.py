@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.signal import lfilter
 
@@ -70,10 +71,30 @@ def ar1_toeplitz_apply(X: np.ndarray, rho: float) -> np.ndarray:
         raise ValueError(f"ar1_toeplitz_apply: rho = {rho}; expected 0 <= rho < 1 (L >= 1 px)")
     if rho == 0.0:
         return X.copy()
+    if X.ndim == 2 and X.shape[0] > 0:
+        return _ar1_apply_2d(np.ascontiguousarray(X), float(rho))
     a = [1.0, -rho]
     fwd = lfilter([1.0], a, X, axis=0)
     bwd = lfilter([1.0], a, X[::-1], axis=0)[::-1]
     return fwd + bwd - X
+
+
+@numba.njit(cache=True)
+def _ar1_apply_2d(X, rho):
+    """`ar1_toeplitz_apply` for a 2-D X: the recursions f_j = X_j + rho f_{j-1} forwards and
+    backwards (the arithmetic of ``lfilter([1], [1, -rho])``), then F X + B X - X."""
+    m, p = X.shape
+    out = np.empty((m, p))
+    for c in range(p):
+        f = 0.0
+        for j in range(m):
+            f = rho * f + X[j, c] if j else X[j, c]
+            out[j, c] = f
+        b = 0.0
+        for j in range(m - 1, -1, -1):
+            b = rho * b + X[j, c] if j < m - 1 else X[j, c]
+            out[j, c] = out[j, c] + b - X[j, c]
+    return out
 
 
 def ar1_quadratic_form(X: np.ndarray, Y: np.ndarray, rho: float) -> np.ndarray:
@@ -84,10 +105,15 @@ def ar1_quadratic_form(X: np.ndarray, Y: np.ndarray, rho: float) -> np.ndarray:
 def tangent_basis(e: np.ndarray) -> np.ndarray:
     """3x2 orthonormal basis of the plane orthogonal to unit vector e."""
     e = np.asarray(e, dtype=float)
-    a = np.array([1.0, 0.0, 0.0]) if abs(e[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = np.cross(e, a)
-    t1 /= np.linalg.norm(t1)
-    return np.stack([t1, np.cross(e, t1)], axis=1)
+    e0, e1, e2 = (float(v) for v in e)
+    # t1 = e x a (a = x, or y when e is near x), t2 = e x t1; scalar arithmetic (called per fit)
+    if abs(e0) < 0.9:
+        t = (0.0 * e1 - e2 * 0.0, e2 * 1.0 - e0 * 0.0, e0 * 0.0 - e1 * 1.0)
+    else:
+        t = (e1 * 0.0 - e2 * 1.0, e2 * 0.0 - e0 * 0.0, e0 * 1.0 - e1 * 0.0)
+    tn = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+    a0, a1, a2 = t[0] / tn, t[1] / tn, t[2] / tn
+    return np.array([[a0, e1 * a2 - e2 * a1], [a1, e2 * a0 - e0 * a2], [a2, e0 * a1 - e1 * a0]])
 
 
 def direction_covariance(rays_c: np.ndarray, jac: np.ndarray, n: np.ndarray, R: float,

@@ -61,10 +61,12 @@ Covariance terms
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from vision.binarize import BinarizeConfig
@@ -364,11 +366,29 @@ class FrameResult:
 # helpers
 
 
+@functools.lru_cache(maxsize=512)
 def _subsample(m: int, k: int) -> np.ndarray:
-    """At most k indices spread evenly over 0..m-1 (edge order kept)."""
+    """At most k indices spread evenly over 0..m-1 (edge order kept). Cached per (m, k) (the
+    same edge lengths recur from frame to frame); the returned array is read-only."""
     if m <= k:
-        return np.arange(m)
-    return np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))
+        idx = np.arange(m)
+    else:
+        idx = np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))
+    idx.flags.writeable = False
+    return idx
+
+
+def _median(x: np.ndarray) -> float:
+    """``float(np.median(x))`` for a finite 1-D array, without np.median's per-call overhead
+    (same arithmetic: the middle element, or the mean of the two middle ones)."""
+    n = x.shape[0]
+    if n == 0:
+        return math.nan
+    s = np.sort(x)
+    if np.isnan(s[-1]):   # NaNs sort last; np.median gives NaN
+        return math.nan
+    h = n // 2
+    return float(s[h]) if n % 2 else float((s[h - 1] + s[h]) / 2.0)
 
 
 def conic_polyline(camera: FisheyeCamera, e_c: np.ndarray, alpha: float, n: int = 720,
@@ -469,17 +489,39 @@ def _triple_radii(H: np.ndarray, n_triples: int = 6) -> np.ndarray:
     m = H.shape[0]
     if m < 9:
         return np.zeros(0)
+    return _triple_radii_kernel(np.ascontiguousarray(H, dtype=float), _triple_index(m, n_triples))
+
+
+@functools.lru_cache(maxsize=512)
+def _triple_index(m: int, n_triples: int) -> np.ndarray:
+    """(n_triples, 3) indices of the triples of `_triple_radii` for an edge of m >= 9 rays."""
     s = m // 3
     starts = np.linspace(0, m - 1 - 2 * s, n_triples - 1).round().astype(np.int64)
     i = np.concatenate([[0], starts])
     j = np.concatenate([[m // 2], starts + s])
     k = np.concatenate([[m - 1], starts + 2 * s])
-    p1, p2, p3 = H[i], H[j], H[k]
-    w = np.cross(p2 - p1, p3 - p1)
-    wn = np.linalg.norm(w, axis=1)
-    good = wn > 1e-15
-    c = np.abs(np.einsum("ij,ij->i", w[good], p1[good])) / wn[good]
-    return np.arccos(np.clip(c, 0.0, 1.0))
+    idx = np.ascontiguousarray(np.stack([i, j, k], axis=1))
+    idx.flags.writeable = False
+    return idx
+
+
+@numba.njit(cache=True)
+def _triple_radii_kernel(H, idx):
+    """arccos(|w . p1| / |w|), w = (p2 - p1) x (p3 - p1), for each index triple (p1, p2, p3);
+    triples with |w| <= 1e-15 (collinear) are left out."""
+    out = np.empty(idx.shape[0])
+    n = 0
+    for t in range(idx.shape[0]):
+        i, j, k = idx[t, 0], idx[t, 1], idx[t, 2]
+        ax, ay, az = H[j, 0] - H[i, 0], H[j, 1] - H[i, 1], H[j, 2] - H[i, 2]
+        bx, by, bz = H[k, 0] - H[i, 0], H[k, 1] - H[i, 1], H[k, 2] - H[i, 2]
+        wx, wy, wz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if wn > 1e-15:
+            c = abs(wx * H[i, 0] + wy * H[i, 1] + wz * H[i, 2]) / wn
+            out[n] = math.acos(min(max(c, 0.0), 1.0))
+            n += 1
+    return out[:n]
 
 
 def _disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16) -> str:
@@ -494,11 +536,13 @@ def _disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16
         uv_c = project(camera, e_c)
     pa = float(_pixel_angle(camera, uv_c[None, :])[0]) if np.all(np.isfinite(uv_c)) else 1.0 / camera.fx
     out = []
-    for ang in (0.5 * alpha, alpha + step_px * pa):
-        rays = math.cos(ang) * e_c + math.sin(ang) * ring
-        with np.errstate(invalid="ignore", divide="ignore"):
-            uv = project(camera, rays)
-        use = _in_image(camera, uv)
+    angs = (0.5 * alpha, alpha + step_px * pa)
+    rays2 = np.concatenate([math.cos(ang) * e_c + math.sin(ang) * ring for ang in angs])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uv2 = project(camera, rays2)     # both rings in one call
+    use2 = _in_image(camera, uv2)
+    for q in range(2):
+        uv, use = uv2[q * n:(q + 1) * n], use2[q * n:(q + 1) * n]
         if mask is not None and mask.has_mask and np.any(use):
             sub = np.flatnonzero(use)
             iu = np.clip(np.rint(uv[sub, 0]).astype(np.int64), 0, camera.width - 1)
@@ -580,7 +624,7 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     pa = _pixel_angle(camera, uv)
     thr = tc.ransac_threshold_px * pa
     H = rays_c if model is None else model.to_fit(rays_c)
-    alpha = None if model is None else model.alpha - tc.edge_offset_px * float(np.median(pa))
+    alpha = None if model is None else model.alpha - tc.edge_offset_px * _median(pa)
     # curvature pre-filter: no triple of pixels spread along the edge lies on a circle of the
     # expected angular radius -> not this body's limb (saves the RANSAC on glare/cloud edges)
     rho = _triple_radii(H)
@@ -635,7 +679,7 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     # mirrored-nadir test (002): the body must be bright on its side of the edge
     inl = rr.inliers
     e_c = fit.e_c if model is None else model.to_camera(fit.e_c)
-    alpha_c = fit.alpha if model is None else float(np.median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1))))
+    alpha_c = fit.alpha if model is None else _median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1)))
     side = _side_score(image, camera, mask, det.threshold, rays_c[inl], uv[inl], e_c, alpha_c,
                        tc.side_check_px, tc.side_check_rays)
     if not side >= tc.side_check_min and alpha is not None:
@@ -766,7 +810,7 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
             g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
             g /= 1e-3
             P = P + sigma_d**2 * np.outer(g, g)
-        conic = conic_type(e_c, float(np.median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1)))))[1]
+        conic = conic_type(e_c, _median(np.arccos(np.clip(rays_c[inl] @ e_c, -1, 1))))[1]
     else:
         e_c = fit.e_c
         cov = direction_covariance(rays_c[inl], J[inl], fit.n, tc.R_px2, L_eff, method="linear")

@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 __all__ = [
@@ -113,17 +114,37 @@ def _check_rays(rays_c: np.ndarray, minimum: int = 3) -> np.ndarray:
         raise ValueError(f"rays_c must have shape (m, 3), got {H.shape}")
     if H.shape[0] < minimum:
         raise ValueError(f"need at least {minimum} rays, got {H.shape[0]}")
-    if not np.all(np.isfinite(H)):
+    out, status = _normalise_rows(np.ascontiguousarray(H))
+    if status == 1:
         raise ValueError("rays_c contains NaN/inf (pixels outside the camera's valid range?)")
-    norm = np.linalg.norm(H, axis=1)
-    if np.any(norm == 0):
+    if status == 2:
         raise ValueError("rays_c contains zero-length rays")
-    return H / norm[:, None]
+    return out
+
+
+@numba.njit(cache=True)
+def _normalise_rows(H):
+    """Rows of H (m, 3) divided by their norms; status 1: a NaN/inf, 2: a zero row, else 0."""
+    m = H.shape[0]
+    out = np.empty((m, 3))
+    for j in range(m):
+        if not (math.isfinite(H[j, 0]) and math.isfinite(H[j, 1]) and math.isfinite(H[j, 2])):
+            return out, 1
+    for j in range(m):
+        n = math.sqrt(H[j, 0] * H[j, 0] + H[j, 1] * H[j, 1] + H[j, 2] * H[j, 2])
+        if n == 0.0:
+            return out, 2
+        out[j, 0], out[j, 1], out[j, 2] = H[j, 0] / n, H[j, 1] / n, H[j, 2] / n
+    return out, 0
 
 
 def angle_residuals(rays_c: np.ndarray, e_c: np.ndarray, alpha: float) -> np.ndarray:
     """Signed angular distance of each unit ray from the cone, acos(p^T e) - alpha [rad]."""
-    c = np.clip(np.asarray(rays_c) @ np.asarray(e_c), -1.0, 1.0)
+    c = np.asarray(rays_c, dtype=float) @ np.asarray(e_c, dtype=float)
+    if isinstance(c, np.ndarray):
+        c = np.minimum(np.maximum(c, -1.0, out=c), 1.0, out=c)   # np.clip without its per-call overhead
+    else:
+        c = min(max(float(c), -1.0), 1.0)
     return np.arccos(c) - alpha
 
 
@@ -173,6 +194,34 @@ def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: st
                    residual=angle_residual(H, e, alpha), m=H.shape[0], method=method)
 
 
+@numba.njit(cache=True)
+def _secular_root(w, b, lo, hi, scale):
+    """Root lam in (lo, hi) of 1/|e(lam)| - 1, |e(lam)|^2 = sum b_i^2 / (w_i - lam)^2, by
+    safeguarded Newton from lo (`constrained_cone_fit`; 3 eigenvalues)."""
+    lam = lo
+    for _ in range(200):
+        d0, d1, d2 = w[0] - lam, w[1] - lam, w[2] - lam
+        q0, q1, q2 = b[0] / d0, b[1] / d1, b[2] / d2
+        s = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+        ds = (q0 * (q0 / d0) + q1 * (q1 / d1) + q2 * (q2 / d2)) / s  # d|e|/dlam
+        phi = 1.0 / s - 1.0  # increasing -> 0 at the root; phi >= 0 left of it
+        if phi > 0:
+            lo = lam
+        else:
+            hi = lam
+        if abs(phi) < 1e-15:
+            break
+        dphi = -ds / (s * s)
+        new = lam - phi / dphi if dphi != 0 else 0.5 * (lo + hi)
+        if not lo < new < hi:
+            new = 0.5 * (lo + hi)
+        if abs(new - lam) <= 1e-16 * scale:
+            lam = new
+            break
+        lam = new
+    return lam
+
+
 def constrained_cone_fit(H: np.ndarray, c: float) -> np.ndarray:
     """argmin_{|e| = 1} |H e - c 1|^2 (global minimum), H with unit rows.
 
@@ -190,13 +239,6 @@ def constrained_cone_fit(H: np.ndarray, c: float) -> np.ndarray:
     lo, hi = lam_min - bn, lam_min
     scale = max(abs(w[-1]), 1.0)
 
-    def norm_e(lam: float) -> tuple[float, float]:
-        d = w - lam
-        q = b / d
-        s = float(np.sqrt(q @ q))
-        ds = float((q @ (q / d)) / s)  # d|e|/dlam
-        return s, ds
-
     if abs(b[0]) <= 1e-14 * max(bn, 1e-300):
         # hard case: check whether lam = lam_min already gives |e| <= 1
         q = np.where(np.arange(3) == 0, 0.0, b / np.where(w - lam_min == 0, 1.0, w - lam_min))
@@ -204,24 +246,7 @@ def constrained_cone_fit(H: np.ndarray, c: float) -> np.ndarray:
         if sq <= 1.0:
             q[0] = math.sqrt(1.0 - sq)
             return Q @ q
-    lam = lo
-    for _ in range(200):
-        s, ds = norm_e(lam)
-        phi = 1.0 / s - 1.0  # increasing -> 0 at the root; phi >= 0 left of it
-        if phi > 0:
-            lo = lam
-        else:
-            hi = lam
-        if abs(phi) < 1e-15:
-            break
-        dphi = -ds / (s * s)
-        new = lam - phi / dphi if dphi != 0 else 0.5 * (lo + hi)
-        if not lo < new < hi:
-            new = 0.5 * (lo + hi)
-        if abs(new - lam) <= 1e-16 * scale:
-            lam = new
-            break
-        lam = new
+    lam = _secular_root(np.ascontiguousarray(w), np.ascontiguousarray(b), float(lo), float(hi), float(scale))
     e = Q @ (b / (w - lam))
     return e / np.linalg.norm(e)
 

@@ -12,9 +12,9 @@ Minimal models (3 rays each, batched over hypotheses):
 
 Pre-verification (000 §2.3 step 3): each hypothesis is first scored on ``n_preverify`` further
 random rays; only those with all of them within the threshold are scored on all m rays. Scoring is
-the angular distance |acos(p^T e) - alpha|, vectorised as one (hypotheses x m) matrix product per
-batch. The number of hypotheses adapts to the best inlier ratio w found so far:
-k = log(1 - confidence) / log(1 - w^3). The largest consensus set is refitted with
+the angular distance |acos(p^T e) - alpha|, in one numba kernel per batch (`_score_hypotheses`,
+the draws stay with ``rng.integers``). The number of hypotheses adapts to the best inlier ratio w
+found so far: k = log(1 - confidence) / log(1 - w^3). The largest consensus set is refitted with
 `vision.nadir.nadir_from_horizon` (or `direction_and_radius`) and the inliers are re-selected
 once against the refit.
 """
@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from vision.camera import FisheyeCamera, inverse_radial, radial_derivative, radial_distance
@@ -56,39 +57,98 @@ def pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
     return np.maximum(radial, tang)
 
 
-def _hyp_known(P: np.ndarray, c: float) -> tuple[np.ndarray, np.ndarray]:
-    """(B, 3, 3) sample rays -> (B, 3) directions, (B,) valid."""
-    p1, p2, p3 = P[:, 0], P[:, 1], P[:, 2]
-    s = p1 + p2
-    w = np.cross(p1, p2)
-    sn = np.linalg.norm(s, axis=1)
-    wn = np.linalg.norm(w, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = 2.0 * c / sn
-        b = np.sqrt(np.maximum(1.0 - a * a, 0.0))
-        sh = s / sn[:, None]
-        wh = w / wn[:, None]
-    valid = (a <= 1.0) & (wn > 1e-12) & (sn > 1e-12)
-    e_plus = a[:, None] * sh + b[:, None] * wh
-    e_minus = a[:, None] * sh - b[:, None] * wh
-    r_plus = np.abs(np.einsum("bi,bi->b", p3, e_plus) - c)
-    r_minus = np.abs(np.einsum("bi,bi->b", p3, e_minus) - c)
-    e = np.where((r_plus <= r_minus)[:, None], e_plus, e_minus)
-    return e, valid & np.all(np.isfinite(e), axis=1)
+@numba.njit(cache=True)
+def _clip1(x):
+    return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
 
 
-def _hyp_free(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(B, 3, 3) -> directions (B, 3), alphas (B,), valid (B,)."""
-    det = np.linalg.det(P)
-    ok = np.abs(det) > 1e-12
-    Ps = np.where(ok[:, None, None], P, np.eye(3))
-    n = np.linalg.solve(Ps, np.ones((P.shape[0], 3, 1)))[..., 0]
-    nn = np.linalg.norm(n, axis=1)
-    valid = ok & (nn > 1.0) & np.isfinite(nn)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        alpha = np.arccos(np.clip(1.0 / nn, -1.0, 1.0))
-        e = n / nn[:, None]
-    return e, alpha, valid
+@numba.njit(cache=True)
+def _score_hypotheses(H, idx, thr, c, alpha, free):
+    """Minimal models of all B samples ``idx`` (B, 3 + k) (the formulas of the module docstring;
+    samples with repeated indices are invalid), pre-verification on the k further rays (000 §2.3),
+    and the inlier count on all m rays of the survivors. Returns counts (B,) (-1: invalid or
+    failed the pre-verification), directions (B, 3), half-angles (B,)."""
+    B = idx.shape[0]
+    k = idx.shape[1] - 3
+    m = H.shape[0]
+    counts = np.full(B, -1, np.int64)
+    E = np.zeros((B, 3))
+    AL = np.zeros(B)
+    for h in range(B):
+        i0, i1, i2 = idx[h, 0], idx[h, 1], idx[h, 2]
+        if i0 == i1 or i0 == i2 or i1 == i2:
+            continue
+        p1x, p1y, p1z = H[i0, 0], H[i0, 1], H[i0, 2]
+        p2x, p2y, p2z = H[i1, 0], H[i1, 1], H[i1, 2]
+        p3x, p3y, p3z = H[i2, 0], H[i2, 1], H[i2, 2]
+        if free:
+            # n = P^-1 1 (Cramer: (p2 x p3 + p3 x p1 + p1 x p2) / det)
+            c23x, c23y, c23z = p2y * p3z - p2z * p3y, p2z * p3x - p2x * p3z, p2x * p3y - p2y * p3x
+            c31x, c31y, c31z = p3y * p1z - p3z * p1y, p3z * p1x - p3x * p1z, p3x * p1y - p3y * p1x
+            c12x, c12y, c12z = p1y * p2z - p1z * p2y, p1z * p2x - p1x * p2z, p1x * p2y - p1y * p2x
+            det = p1x * c23x + p1y * c23y + p1z * c23z
+            if not abs(det) > 1e-12:
+                continue
+            nx = (c23x + c31x + c12x) / det
+            ny = (c23y + c31y + c12y) / det
+            nz = (c23z + c31z + c12z) / det
+            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if not (nn > 1.0 and math.isfinite(nn)):
+                continue
+            al = math.acos(_clip1(1.0 / nn))
+            ex, ey, ez = nx / nn, ny / nn, nz / nn
+        else:
+            sx, sy, sz = p1x + p2x, p1y + p2y, p1z + p2z
+            wx, wy, wz = p1y * p2z - p1z * p2y, p1z * p2x - p1x * p2z, p1x * p2y - p1y * p2x
+            sn = math.sqrt(sx * sx + sy * sy + sz * sz)
+            wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+            if not (wn > 1e-12 and sn > 1e-12):
+                continue
+            a = 2.0 * c / sn
+            if not a <= 1.0:
+                continue
+            b = math.sqrt(max(1.0 - a * a, 0.0))
+            shx, shy, shz = sx / sn, sy / sn, sz / sn
+            whx, why, whz = wx / wn, wy / wn, wz / wn
+            epx, epy, epz = a * shx + b * whx, a * shy + b * why, a * shz + b * whz
+            emx, emy, emz = a * shx - b * whx, a * shy - b * why, a * shz - b * whz
+            rp = abs(p3x * epx + p3y * epy + p3z * epz - c)
+            rm = abs(p3x * emx + p3y * emy + p3z * emz - c)
+            if rp <= rm:
+                ex, ey, ez = epx, epy, epz
+            else:
+                ex, ey, ez = emx, emy, emz
+            if not (math.isfinite(ex) and math.isfinite(ey) and math.isfinite(ez)):
+                continue
+            al = alpha
+        ok = True
+        for q in range(k):
+            j = idx[h, 3 + q]
+            r = abs(math.acos(_clip1(H[j, 0] * ex + H[j, 1] * ey + H[j, 2] * ez)) - al)
+            if not r <= thr[j]:
+                ok = False
+                break
+        if not ok:
+            continue
+        n_in = 0
+        for j in range(m):
+            r = abs(math.acos(_clip1(H[j, 0] * ex + H[j, 1] * ey + H[j, 2] * ez)) - al)
+            if r <= thr[j]:
+                n_in += 1
+        counts[h] = n_in
+        E[h, 0], E[h, 1], E[h, 2] = ex, ey, ez
+        AL[h] = al
+    return counts, E, AL
+
+
+@numba.njit(cache=True)
+def _inlier_row(H, e, al, thr):
+    """Inlier mask of one hypothesis, the test of `_score_hypotheses`."""
+    m = H.shape[0]
+    out = np.zeros(m, np.bool_)
+    for j in range(m):
+        out[j] = abs(math.acos(_clip1(H[j, 0] * e[0] + H[j, 1] * e[1] + H[j, 2] * e[2])) - al) <= thr[j]
+    return out
 
 
 def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | None = None,
@@ -113,7 +173,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
     """
     H = _check_rays(rays_c)
     m = H.shape[0]
-    thr = np.broadcast_to(np.asarray(threshold, dtype=float), (m,))
+    thr = np.ascontiguousarray(np.broadcast_to(np.asarray(threshold, dtype=float), (m,)))
     if not np.all(thr > 0):
         raise ValueError("ransac_cone: threshold must be > 0 [rad]")
     if not 0 < confidence < 1:
@@ -125,30 +185,16 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
     while n_hyp < min(needed, max_hypotheses):
         B = min(batch, max_hypotheses - n_hyp)
         idx = rng.integers(0, m, size=(B, 3 + n_preverify))
-        distinct = ((idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2]))
-        P = H[idx[:, :3]]
-        if c is None:
-            e, al, valid = _hyp_free(P)
-        else:
-            e, valid = _hyp_known(P, c)
-            al = np.full(B, alpha)
-        valid &= distinct
+        counts, E, AL = _score_hypotheses(H, idx, thr, -1.0 if c is None else c,
+                                          0.0 if alpha is None else alpha, c is None)
         n_hyp += B
-        if n_preverify > 0 and np.any(valid):
-            pre = H[idx[:, 3:]]  # (B, k, 3)
-            cosang = np.clip(np.einsum("bki,bi->bk", pre, np.nan_to_num(e)), -1, 1)
-            r = np.abs(np.arccos(cosang) - al[:, None])
-            valid &= np.all(r <= thr[idx[:, 3:]], axis=1)
+        valid = counts >= 0
         if not np.any(valid):
             continue
-        ev, av = e[valid], al[valid]
-        n_scored += ev.shape[0]
-        ang = np.arccos(np.clip(ev @ H.T, -1.0, 1.0))  # (b, m)
-        inl = np.abs(ang - av[:, None]) <= thr[None, :]
-        counts = inl.sum(axis=1)
+        n_scored += int(valid.sum())
         j = int(np.argmax(counts))
         if counts[j] > best_count:
-            best_count, best_mask = int(counts[j]), inl[j].copy()
+            best_count, best_mask = int(counts[j]), _inlier_row(H, E[j], AL[j], thr)
             w = best_count / m
             if w >= 1.0:
                 needed = n_hyp
