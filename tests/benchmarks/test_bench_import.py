@@ -24,18 +24,10 @@ import pyarrow.csv as pcsv
 from scenarios.importer.build import import_flight
 from scenarios.importer.mapping import load_mapping
 from scenarios.importer.tables import read_imu
+from tests.benchmarks.timing import best_of
 
 T0 = 1_560_392_460_000_000_000
 G0 = 9.80665
-
-
-def _best(fn, runs):
-    best, out = np.inf, None
-    for _ in range(runs):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def test_bench_import_imu_csv(tmp_path, bench, is_quick):
@@ -60,13 +52,13 @@ axes = ["+z", "+x", "+y"]
 """)
     m = load_mapping(mapping)
     read_imu(m.imu, m.liftoff_ns)  # warm-up: page cache, pyarrow thread pool
-    t_parse, imu = _best(lambda: read_imu(m.imu, m.liftoff_ns), 3)
+    t_parse, imu = best_of(lambda: read_imu(m.imu, m.liftoff_ns), 3)
     # correctness of what was timed: body = sensor (z, x, y), one multiplication per value
     assert np.array_equal(imu.t_ns, t)
     assert np.allclose(imu.gyro, np.radians(w_dps[:, [2, 0, 1]]), rtol=4e-16, atol=0)
     assert np.allclose(imu.accel, f_g[:, [2, 0, 1]] * G0, rtol=4e-16, atol=0)
     rate = n / t_parse
-    t_raw, raw = _best(path.read_bytes, 5)
+    t_raw, raw = best_of(path.read_bytes, 5)
 
     def csv_module(k=100_000):
         with open(path, newline="") as fh:
@@ -79,7 +71,7 @@ axes = ["+z", "+x", "+y"]
                 out.append([int(row[0])] + [float(x) for x in row[1:]])
         return len(out)
 
-    t_csv, k = _best(csv_module, 2)
+    t_csv, k = best_of(csv_module, 2)
     csv_rate = k / t_csv
     t_e2e = time.perf_counter()
     res = import_flight(m, tmp_path / "out.mcap")

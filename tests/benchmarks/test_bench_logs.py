@@ -19,18 +19,9 @@ import numpy as np
 
 from scenarios.log_reader import read_log
 from scenarios.log_writer import LogWriter
+from tests.benchmarks.timing import best_of
 
 T0 = 1_560_392_460_000_000_000
-
-
-def _best(fn, runs):
-    best = np.inf
-    out = None
-    for _ in range(runs):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def test_bench_imu_read(tmp_path, bench, is_quick):
@@ -47,12 +38,12 @@ def test_bench_imu_read(tmp_path, bench, is_quick):
         with LogWriter(path, {"scenario": "", "seed": 0, "liftoff_utc_ns": T0, "kind": "simulated"}) as w:
             w.write_imu(t, gyro, accel)
 
-    t_write, _ = _best(write, 2)
+    t_write, _ = best_of(write, 2)
     t_ref = _mcap_add_message_time(path, 50_000)
     read_log(path, topics=["/imu"])  # warm-up: numba compile/cache load, page cache
-    t_read, log = _best(lambda: read_log(path, topics=["/imu"]), 3)
+    t_read, log = best_of(lambda: read_log(path, topics=["/imu"]), 3)
     assert np.array_equal(log.imu.gyro, gyro) and np.array_equal(log.imu.t_ns, t)
-    t_raw, raw = _best(path.read_bytes, 5)
+    t_raw, raw = best_of(path.read_bytes, 5)
     mb = len(raw) / 1e6
     rate = n / t_read
     print(f"\nIMU log: {n} samples, {mb:.1f} MB (zstd), write {t_write:.2f} s ({n / t_write:.0f} samples/s), "
