@@ -32,6 +32,7 @@ import math
 import os
 import time
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -96,10 +97,13 @@ def _cpu() -> float:
 class _Progress:
     """One progress bar over every stage: each vision frame is one step, every other stage (init,
     filter, smoother, write, Rerun) a block of ``max(5, frames // 8)`` steps counted when it ends
-    (the filter and smoother are single calls); the description names the running stage."""
+    (the filter and smoother are single calls); the description names the running stage.
+    :meth:`timed` also records each stage's wall and CPU seconds and which stage is running."""
 
-    def __init__(self, n_frames: int, stages: list, enabled: bool):
+    def __init__(self, n_frames: int, stages: list, enabled: bool, wall: dict, cpu: dict):
         self.block = max(5, n_frames // 8)
+        self.wall, self.cpu = wall, cpu
+        self.current = ""
         self.bar = None
         if enabled:
             from tqdm import tqdm
@@ -119,6 +123,18 @@ class _Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+    @contextmanager
+    def timed(self, name: str, block: bool = True):
+        """Run a stage: name it on the bar, time it (wall and CPU), count its block at the end."""
+        self.current = name
+        self.stage(name)
+        t, c0 = time.perf_counter(), _cpu()
+        yield
+        self.wall[name] = time.perf_counter() - t
+        self.cpu[name] = _cpu() - c0
+        if block:
+            self.end_stage()
 
 
 def _gps_at(inp, t_ns):
@@ -273,96 +289,39 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     if mode == "images":
         n_frames = sum(_frames_in(inp.cameras[k].images.t_ns, a, b, opt.vision_rate_hz).size for k in cam_numbers)
     prog = _Progress(n_frames, ["init", "filter"] + (["smoother"] if opt.smoother else []) + ["write"]
-                     + (["rerun"] if (opt.rrd != "" or opt.spawn) else []), opt.progress)
+                     + (["rerun"] if (opt.rrd != "" or opt.spawn) else []), opt.progress, timings, cpu)
     w = LogWriter(out, meta)
-    stage = "vision"
     frames = []
     vectors = None
     res = sm = None
-    tri_init = None
-    init_method = opt.init
     try:
-        # ------------------------------------------------------------------ vision
-        t, c0 = time.perf_counter(), _cpu()
-        if mode == "images":
-            prog.stage("vision")
-            frames, vectors = _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out=frames, progress=prog.update,
-                                          on_pool_start=_preload_rerun if (opt.rrd != "" or opt.spawn) else None)
-        elif mode == "vectors":
-            vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
-        timings["vision"] = time.perf_counter() - t
-        cpu["vision"] = _cpu() - c0
-        # ------------------------------------------------------------------ init
-        stage = "init"
-        prog.stage("init")
-        t, c0 = time.perf_counter(), _cpu()
+        with prog.timed("vision", block=False):  # the frames are its steps
+            if mode == "images":
+                frames, vectors = _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out=frames,
+                                              progress=prog.update,
+                                              on_pool_start=_preload_rerun if (opt.rrd != "" or opt.spawn) else None)
+            elif mode == "vectors":
+                vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
+        with prog.timed("init"):
+            init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
         R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
-        has_pair = vectors is not None and {"hor", "sun"} <= set(np.unique(vectors.target))
-        if init_method is None:
-            if has_pair and gps is not None:
-                init_method = "triad"
-            else:
-                init_method = "truth" if inp.truth is not None else "gps"
-                msgs.append("initialisation: no epoch with both a horizon and a Sun vector for TRIAD (003 §7.4); "
-                            + ("using the log's truth (--init truth)" if init_method == "truth"
-                               else "using the first GPS fix and a level attitude with 180 deg sigma is not "
-                                    "possible: give --init given --init-file STATE.toml"))
-                if init_method == "gps":
-                    raise UserError("--init: no TRIAD epoch and no truth in the log; give --init given --init-file STATE.toml "
-                                    "(time, q_eb and optionally position_e, velocity_e)")
-        if init_method == "truth":
-            if inp.truth is None:
-                raise UserError(f"--init truth: {inp.path} has no /truth/state; use --init triad or given")
-            init = _truth_init(inp, imu)
-        elif init_method == "given":
-            if not opt.init_file:
-                raise UserError("--init given: needs --init-file STATE.toml (time, q_eb, position_e, velocity_e)")
-            init = _given_init(opt.init_file, inp, imu)
-        else:
-            if not has_pair:
-                raise UserError("--init triad: no epoch with both a horizon and a Sun vector"
-                                + (" (use --init truth: the log has truth)" if inp.truth is not None else
-                                   " (use --init given --init-file STATE.toml)"))
-            if gps is None:
-                raise UserError("--init triad: needs GPS position and velocity")
-            init, tri_init = _triad(imu, gps, vectors, R_bc)
-        if mode == "images" and vectors is not None:
-            vectors = _correct_earth(vectors, imu, init, inp, R_bc)
-            if init_method == "triad":
-                init, tri_init = _triad(imu, gps, vectors, R_bc)
-        timings["init"] = time.perf_counter() - t
-        cpu["init"] = _cpu() - c0
-        prog.end_stage()
-        stage = "filter"
-        prog.stage("filter")
-        t, c0 = time.perf_counter(), _cpu()
-        try:
-            res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc, store_for_smoother=opt.smoother)
-        except ValueError as e:
-            raise UserError(f"filter: {e}") from None
-        timings["filter"] = time.perf_counter() - t
-        cpu["filter"] = _cpu() - c0
-        prog.end_stage()
+        with prog.timed("filter"):
+            try:
+                res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc,
+                              store_for_smoother=opt.smoother)
+            except ValueError as e:
+                raise UserError(f"filter: {e}") from None
         if opt.smoother:
-            stage = "smoother"
-            prog.stage("smoother")
-            t, c0 = time.perf_counter(), _cpu()
-            from nav.smoother import rts_smooth
-            sm = rts_smooth(res)
-            res.store = None
-            timings["smoother"] = time.perf_counter() - t
-            cpu["smoother"] = _cpu() - c0
-            prog.end_stage()
-        stage = "write"
-        prog.stage("write")
-        t, c0 = time.perf_counter(), _cpu()
-        SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
-        w.close()
-        timings["write"] = time.perf_counter() - t
-        cpu["write"] = _cpu() - c0
-        prog.end_stage()
+            with prog.timed("smoother"):
+                from nav.smoother import rts_smooth
+                sm = rts_smooth(res)
+                res.store = None
+        with prog.timed("write"):
+            SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
+            w.close()
     except KeyboardInterrupt:
         prog.close()
+        stage = prog.current
         if stage == "vision":
             vectors = _vd([(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
                            for f in frames for r in f.records if r.camera in cam_numbers])
@@ -378,18 +337,57 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     rrd = None
     rerun_parts: dict = {}
     if opt.rrd != "" or opt.spawn:
-        t, c0 = time.perf_counter(), _cpu()
-        prog.stage("rerun")
-        from scenarios.replay.rerun_view import record
-        rrd = None if opt.spawn and not opt.rrd else Path(opt.rrd or out.with_name(
-            out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
-        record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn, timings=rerun_parts)
-        timings["rerun"] = time.perf_counter() - t
-        cpu["rerun"] = _cpu() - c0
-        prog.end_stage()
+        with prog.timed("rerun"):
+            from scenarios.replay.rerun_view import record
+            rrd = None if opt.spawn and not opt.rrd else Path(opt.rrd or out.with_name(
+                out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
+            record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn, timings=rerun_parts)
     prog.close()
     return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init,
                         cpu, rerun_parts)
+
+
+def _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs):
+    """The initial state (003 §7.4): truth, a given state, or TRIAD + back-propagation; on the image
+    path the Earth vectors are corrected to the geocentric nadir with the initial attitude (and TRIAD
+    repeated on the corrected vectors). Returns (init, TRIAD result or None, method, vectors)."""
+    tri_init = None
+    init_method = opt.init
+    R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
+    has_pair = vectors is not None and {"hor", "sun"} <= set(np.unique(vectors.target))
+    if init_method is None:
+        if has_pair and gps is not None:
+            init_method = "triad"
+        else:
+            init_method = "truth" if inp.truth is not None else "gps"
+            msgs.append("initialisation: no epoch with both a horizon and a Sun vector for TRIAD (003 §7.4); "
+                        + ("using the log's truth (--init truth)" if init_method == "truth"
+                           else "using the first GPS fix and a level attitude with 180 deg sigma is not "
+                                "possible: give --init given --init-file STATE.toml"))
+            if init_method == "gps":
+                raise UserError("--init: no TRIAD epoch and no truth in the log; give --init given --init-file STATE.toml "
+                                "(time, q_eb and optionally position_e, velocity_e)")
+    if init_method == "truth":
+        if inp.truth is None:
+            raise UserError(f"--init truth: {inp.path} has no /truth/state; use --init triad or given")
+        init = _truth_init(inp, imu)
+    elif init_method == "given":
+        if not opt.init_file:
+            raise UserError("--init given: needs --init-file STATE.toml (time, q_eb, position_e, velocity_e)")
+        init = _given_init(opt.init_file, inp, imu)
+    else:
+        if not has_pair:
+            raise UserError("--init triad: no epoch with both a horizon and a Sun vector"
+                            + (" (use --init truth: the log has truth)" if inp.truth is not None else
+                               " (use --init given --init-file STATE.toml)"))
+        if gps is None:
+            raise UserError("--init triad: needs GPS position and velocity")
+        init, tri_init = _triad(imu, gps, vectors, R_bc)
+    if mode == "images" and vectors is not None:
+        vectors = _correct_earth(vectors, imu, init, inp, R_bc)
+        if init_method == "triad":
+            init, tri_init = _triad(imu, gps, vectors, R_bc)
+    return init, tri_init, init_method, vectors
 
 
 def _triad(imu, gps, vectors, R_bc):
