@@ -1,25 +1,15 @@
 """Renderer speed: one 1920x1080 ATEK frame (stand-in pose: Esrange, 230 km, 20 deg below the
 horizon, Sun in view) on one core, against JPEG-encoding the same frame (in-run baseline)."""
-import math
 import time
 
 import cv2
 import numba
 import numpy as np
 
-from nav import earth, ephemeris, timescales
+from nav import ephemeris, timescales
 from scenarios import render
+from tests.poses import pose
 from vision.camera import atek_camera
-
-
-def _pose(az_deg, down_deg=20.0, h=230e3):
-    la, lo = math.radians(67.89), math.radians(21.10)
-    x = earth.geodetic_to_ecef(la, lo, h)
-    az, el = math.radians(az_deg), -math.radians(down_deg)
-    z_n = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), -math.sin(el)])
-    x_n = np.cross([0.0, 0.0, 1.0], z_n)
-    x_n /= np.linalg.norm(x_n)
-    return earth.R_en(la, lo) @ np.column_stack([x_n, np.cross(z_n, x_n), z_n]), x
 
 
 def test_render_frame_speed(bench, is_quick):
@@ -31,7 +21,7 @@ def test_render_frame_speed(bench, is_quick):
         cam = atek_camera()
         t = timescales.parse_utc("2019-06-13T02:24:40Z")
         sun, moon = ephemeris.sun_position_e(t), ephemeris.moon_position_e(t)
-        R, x = _pose(60.0)  # Sun in the upper part of the image, Earth in the lower half
+        R, x = pose(60.0)  # Sun in the upper part of the image, Earth in the lower half
         opts = render.RenderOptions()
         fr = render.render_frame(cam, R, x, sun, moon, seed=0, options=opts)  # compile, caches
         n = 3 if is_quick else 10
