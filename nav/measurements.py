@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nav.rotation import rotvec_to_matrix
+from nav.rotation import rotvec_to_matrix, tangent_bases, tangent_basis
 
 
 def _sk(v):
@@ -112,15 +112,6 @@ def innovation_covariance(H, P, R) -> np.ndarray:
     return 0.5 * (S + S.T)
 
 
-def tangent_basis(e) -> np.ndarray:
-    """(3, 2) orthonormal basis of the plane perpendicular to the unit vector ``e``."""
-    e = np.asarray(e, float) / np.linalg.norm(e)
-    a = np.array([1.0, 0.0, 0.0]) if abs(e[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = _sk(e) @ a
-    t1 /= np.linalg.norm(t1)
-    return np.stack([t1, _sk(e) @ t1], axis=1)
-
-
 def correct_mounting(R_bc, psi_c) -> np.ndarray:
     """003 eq. (50): ``(I + [psi_c x]) R_bc`` in its exact, orthonormal form ``exp([psi_c x]) R_bc``."""
     return rotvec_to_matrix(np.asarray(psi_c, float)) @ R_bc
@@ -157,16 +148,6 @@ def gps_velocity(v_e, R_eb, w_eb_b, lever_b):
     the lever-arm term (|l| * gyro error, micrometres per second) is neglected."""
     r = R_eb @ (_sk(np.asarray(w_eb_b, float)) @ np.asarray(lever_b, float))
     return np.asarray(v_e, float) + r, np.eye(3), -_sk(r)
-
-
-def tangent_bases(e) -> np.ndarray:
-    """:func:`tangent_basis` of every row of ``e`` (N, 3): (N, 3, 2)."""
-    e = np.asarray(e, float)
-    e = e / np.linalg.norm(e, axis=-1, keepdims=True)
-    a = np.where((np.abs(e[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    t1 = np.cross(e, a)
-    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    return np.stack([t1, np.cross(e, t1)], axis=-1)
 
 
 def vector_covariance_problems(P_c, e_c) -> np.ndarray:

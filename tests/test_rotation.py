@@ -84,3 +84,19 @@ def test_bad_shapes():
         R.quat_to_matrix(np.zeros(4))
     with pytest.raises(ValueError, match="R: expected shape"):
         R.matrix_to_quat(np.eye(2))
+
+
+def test_tangent_basis_is_orthonormal_and_vectorised():
+    rng = np.random.default_rng(5)
+    e = rng.normal(size=(200, 3))
+    e[0] = [1.0, 1e-9, 0.0]  # the switch to the y axis near x
+    Tn = R.tangent_bases(e)
+    for ei, T in zip(e, Tn):
+        u = ei / np.linalg.norm(ei)
+        T1 = R.tangent_basis(ei)
+        np.testing.assert_allclose(T1, T, atol=1e-15)
+        np.testing.assert_allclose(T1.T @ T1, np.eye(2), atol=1e-15)
+        np.testing.assert_allclose(T1.T @ u, 0.0, atol=1e-15)
+        np.testing.assert_allclose(np.cross(T1[:, 0], T1[:, 1]), u, atol=1e-15)  # right-handed [t1, t2, e]
+    with pytest.raises(ValueError, match="e: zero-length"):
+        R.tangent_basis(np.zeros(3))

@@ -47,6 +47,8 @@ import numba
 import numpy as np
 from scipy.signal import lfilter
 
+from nav.rotation import tangent_basis
+
 __all__ = ["DirectionCovariance", "ar1_toeplitz_apply", "ar1_quadratic_form",
            "direction_covariance", "tangent_basis"]
 
@@ -100,20 +102,6 @@ def _ar1_apply_2d(X, rho):
 def ar1_quadratic_form(X: np.ndarray, Y: np.ndarray, rho: float) -> np.ndarray:
     """X^T T Y for T_jk = rho^|j-k| in O(m) (X: (m, p), Y: (m, q))."""
     return np.asarray(X).T @ ar1_toeplitz_apply(Y, rho)
-
-
-def tangent_basis(e: np.ndarray) -> np.ndarray:
-    """3x2 orthonormal basis of the plane orthogonal to unit vector e."""
-    e = np.asarray(e, dtype=float)
-    e0, e1, e2 = (float(v) for v in e)
-    # t1 = e x a (a = x, or y when e is near x), t2 = e x t1; scalar arithmetic (called per fit)
-    if abs(e0) < 0.9:
-        t = (0.0 * e1 - e2 * 0.0, e2 * 1.0 - e0 * 0.0, e0 * 0.0 - e1 * 1.0)
-    else:
-        t = (e1 * 0.0 - e2 * 1.0, e2 * 0.0 - e0 * 0.0, e0 * 1.0 - e1 * 0.0)
-    tn = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-    a0, a1, a2 = t[0] / tn, t[1] / tn, t[2] / tn
-    return np.array([[a0, e1 * a2 - e2 * a1], [a1, e2 * a0 - e0 * a2], [a2, e0 * a1 - e1 * a0]])
 
 
 def direction_covariance(rays_c: np.ndarray, jac: np.ndarray, n: np.ndarray, R: float,
