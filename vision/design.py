@@ -40,15 +40,30 @@ maximum 0.1924 deg at 45 deg latitude ("about 0.19 deg", 003 fig. 8).
 
 Roll/pitch sensitivity (003 §4)
 -------------------------------
-Setup of 003 §4: vehicle horizontal, camera looking forward horizontally (camera z = north,
-x = east, y = down, so e_c = [0, 1, 0]), horizon noise R = (1 px)^2, L = 300 px (eq. (36)),
-d = 0, H = 200 km, FOV 94.4 deg, "resolution 1080 px". Reading chosen here: a *pinhole* camera
-(003 §4 evaluates eq. (33), which is derived for undistorted z = f image-plane points) with a
-square N x N sensor (N = 1080) whose FOV spans the N px: f = (N/2) / tan(FOV/2). fig. 21's "vertical
-image resolution" suggests N is the vertical size; ``aspect`` = width/height widens the sensor.
+Setup of 003 §4: "the vehicle is oriented horizontally and the camera is looking forward in a
+horizontal direction", horizon noise R = (1 px)^2, L = 300 px (eq. (36)), d = 0, H = 200 km,
+FOV 94.4 deg, "resolution 1080 px". The vehicle is a sounding rocket (CONVENTIONS.md: body x along
+the longitudinal axis, the roll axis) lying horizontally with its nose north; its cameras look out
+sideways through the payload skin (ATEK: "on opposite sides of the payload"), so the camera that
+looks horizontally forward *for the camera* looks east, perpendicular to the roll axis
+(``mounting="side"``, the default; camera z = east, x = south, y = down). Then
 
-The horizon points are the exact projected hyperbola sampled every ``step_px`` along the curve
-inside the sensor, ordered; the covariance is 003 eq. (33) with eq. (34)-(35) noise. Three forms:
+- roll (about the longitudinal axis, north: *normal* to the line of sight) moves the nadir towards
+  or away from the viewing direction: the horizon shifts up or down in the image;
+- pitch (about the lateral axis along the line of sight, east) tilts the horizon in the image;
+- yaw (about down, the nadir itself) is unobservable.
+
+A small attitude error psi (NED) rotates the nadir d = [0, 0, 1] by psi x d = [psi_E, -psi_N, 0],
+so sigma_roll = sqrt(P_EE) and sigma_pitch = sqrt(P_NN) of the nadir covariance rotated to NED.
+``mounting="forward"`` puts the camera on the roll axis instead (an aircraft-like vehicle: camera
+z = north, x = east); roll and pitch then exchange their roles (roll tilts, pitch shifts).
+
+Camera model: a *pinhole* (003 §4 evaluates eq. (33), derived for undistorted z = f image-plane
+points) with a square N x N sensor (N = 1080) whose FOV spans the N px: f = (N/2) / tan(FOV/2).
+fig. 21's "vertical image resolution" suggests N is the vertical size; ``aspect`` = width/height
+widens the sensor. The horizon points are the exact projected hyperbola sampled every ``step_px``
+along the curve inside the sensor, ordered; the covariance is 003 eq. (33) with eq. (34)-(35)
+noise. Three forms:
 
 - ``form="003"`` (default): literally 003 eqs. (22)-(24), (32)-(33): rows p_c = [x_i, y_i, f] in
   pixels, y_j = cos(alpha) |p_j|, g_j = cos(alpha) p_xy/|p| - e_xy;
@@ -56,28 +71,22 @@ inside the sensor, ordered; the covariance is 003 eq. (33) with eq. (34)-(35) no
   p/|p|: a re-weighting of the rows by 1/|p|);
 - ``form="constrained"``: the unit-norm fit that `vision.nadir` uses by default.
 
-The nadir covariance is rotated to north-east-down; a small attitude error psi rotates the
-nadir d = [0, 0, 1] by psi x d = [psi_E, -psi_N, 0], so roll (about the viewing direction,
-north) has sigma = sqrt(P_EE) and pitch (about east, the horizontal axis normal to the viewing
-direction) sigma = sqrt(P_NN); yaw (about down, the nadir itself) is unobservable.
-
 What this reproduces (``horizon-nav analyze sensitivity``), H = 200 km, 1080 px, R = 1 px^2,
-L = 300 px, form "003": at FOV 94.4 deg, 3 sigma roll 0.237 deg and pitch 0.958 deg. Versus FOV
-(fig. 20) one angle has a clear minimum, at 110.5 deg for the square sensor (116 deg for a
-1920 x 1080 sensor with the FOV across the 1920 px, 128 deg with the FOV across the diagonal,
-118.5 deg with L = 100 px), while the other changes by only 3 % from 30 to 170 deg. **The labels
-are swapped with respect to 003's text**: the FOV-independent one is the rotation about the
-viewing axis (roll), the one with the optimum is pitch. Physical check: a roll rotates the image
+L = 300 px, form "003", side mounting: at FOV 94.4 deg, 3 sigma roll 0.958 deg and pitch
+0.237 deg. Versus FOV (fig. 20) roll has a clear minimum, at 110.5 deg for the square sensor
+(116 deg for a 1920 x 1080 sensor with the FOV across the 1920 px, 128 deg with the FOV across
+the diagonal, 118.5 deg with L = 100 px; 003: "about 118 deg"), while pitch changes by only 3 %
+from 30 to 170 deg ("the pitch angle is not affected by the FOV"). Why: a pitch rotates the image
 about the principal point, i.e. changes the *slope* of the horizon in px per px, which the noisy
-pixels determine independently of the focal length; a pitch moves the horizon up or down by
-f * dpitch px, and eq. (24)'s unconstrained linear fit cannot separate that shift from a change of
-the cone's scale on a nearly straight arc (narrow FOV: error grows) while 1 px means more angle
+pixels determine independently of the focal length; a roll moves the horizon up or down by
+f * droll px, and eq. (24)'s unconstrained linear fit cannot separate that shift from a change
+of the cone's scale on a nearly straight arc (narrow FOV: error grows) while 1 px means more angle
 at wide FOV (error grows again), hence the optimum. The unit-norm fit that `vision.nadir` uses
-("constrained") does not have the coupling: its pitch error is 0.21 deg (3 sigma) at 94.4 deg
-and grows monotonically with the FOV. Height (fig. 19): both errors fall by ~10 % from 50 to
-500 km. Resolution (fig. 21): both fall roughly as 1/N. Atmosphere (fig. 22): < 3 % change for
-d = 0..100 km (the horizon dip changes from 14.2 to 10.0 deg; the residual dependence is that
-geometry, not the scale).
+("constrained") does not have the coupling: its roll error is 0.21 deg (3 sigma) at 94.4 deg and
+grows monotonically with the FOV. Height (fig. 19): from 50 to 500 km roll falls by ~10 % and
+pitch by a few % ("only a minor influence"). Resolution (fig. 21): both fall roughly as 1/N.
+Atmosphere (fig. 22): < 3 % change for d = 0..100 km (the horizon dip changes from 14.2 to
+10.0 deg; the residual dependence is that geometry, not the scale).
 """
 from __future__ import annotations
 
@@ -103,12 +112,17 @@ __all__ = [
     "roll_pitch_sigma",
     "sensitivity_sweep",
     "SENSITIVITY_PARAMS",
-    "R_NC_FORWARD",
+    "R_NC_MOUNTING",
 ]
 
-#: camera frame -> NED for a camera looking forward (north) on a horizontal vehicle:
-#: columns are the camera axes in NED (x right = east, y down = down, z forward = north).
-R_NC_FORWARD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+#: camera frame -> NED on a horizontal vehicle with its nose (body x, the roll axis) north; columns
+#: are the camera axes in NED. "side": looking east, perpendicular to the roll axis (a sounding
+#: rocket's side-looking cameras, 003 §4 and ATEK; x right = south, y = down, z = east).
+#: "forward": looking north along the roll axis (x right = east, y = down, z = north).
+R_NC_MOUNTING = {
+    "side": np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]),
+    "forward": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+}
 
 
 def earth_alpha(height, atmosphere=0.0, radius: float = earth.R_MEAN) -> np.ndarray:
@@ -214,6 +228,8 @@ class SensitivityCase:
     the horizon samples, form ("003", "linear" or "constrained"), radius [m] of the sphere.
     ``camera``: a fisheye camera to use instead of the pinhole (then fov_deg is its horizontal FOV
     and resolution its height; both rescale it; form must be "linear" or "constrained").
+    ``mounting``: "side" (camera perpendicular to the roll axis, 003 §4 / ATEK) or "forward"
+    (camera along the roll axis); see the module docstring.
     """
 
     height: float = 200e3
@@ -228,6 +244,11 @@ class SensitivityCase:
     form: str = "003"
     radius: float = earth.R_MEAN
     camera: FisheyeCamera | None = None
+    mounting: str = "side"
+
+    def __post_init__(self):
+        if self.mounting not in R_NC_MOUNTING:
+            raise ValueError(f"mounting = {self.mounting!r}; expected one of {sorted(R_NC_MOUNTING)}")
 
 
 def _fisheye_for(case: SensitivityCase) -> FisheyeCamera:
@@ -304,7 +325,8 @@ def roll_pitch_sigma(case: SensitivityCase) -> tuple[float, float, int]:
                              "camera; with a fisheye camera file use form 'linear' or 'constrained'")
         rays, J = unproject_jacobian(cam, uv)
         P = direction_covariance(rays, J, e, case.R_px2, case.L_px, method=case.form).P_c
-    P_ned = R_NC_FORWARD @ P @ R_NC_FORWARD.T
+    R_nc = R_NC_MOUNTING[case.mounting]
+    P_ned = R_nc @ P @ R_nc.T
     return math.sqrt(P_ned[1, 1]), math.sqrt(P_ned[0, 0]), m
 
 

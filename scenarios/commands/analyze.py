@@ -49,6 +49,10 @@ def add_arguments(p) -> None:
                    help="sensitivity: pinhole sensor width/height (default 1: square 1080 x 1080)")
     p.add_argument("--fov-axis", choices=["vertical", "horizontal"], default="vertical",
                    help="sensitivity: the sensor side the pinhole FOV spans (default vertical)")
+    p.add_argument("--mounting", choices=["side", "forward"], default="side",
+                   help="sensitivity: camera perpendicular to the vehicle's roll axis (side, as on a "
+                        "sounding rocket and in 003 §4) or along it (forward); roll = about the roll "
+                        "axis")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -183,17 +187,20 @@ def run_spherical_error(out: Path) -> list[Path]:
 
 
 def run_sensitivity(out: Path, params: list[str], camera=None, form: str = "auto",
-                    aspect: float = 1.0, fov_axis: str = "vertical") -> list[Path]:
+                    aspect: float = 1.0, fov_axis: str = "vertical",
+                    mounting: str = "side") -> list[Path]:
     from vision.design import SensitivityCase, sensitivity_sweep
 
     plt = _pyplot()
     if form == "auto":
         form = "003" if camera is None else "constrained"
-    base = SensitivityCase(form=form, aspect=aspect, fov_axis=fov_axis, camera=camera)
+    base = SensitivityCase(form=form, aspect=aspect, fov_axis=fov_axis, camera=camera,
+                           mounting=mounting)
     if camera is not None:
         base = replace(base, fov_deg=_camera_hfov(camera), resolution=camera.height)
     where = (f"pinhole {round(aspect * base.resolution)}x{base.resolution} px, FOV across the "
              f"{fov_axis} side" if camera is None else f"camera {camera.name or 'file'} (fisheye)")
+    where += f", {mounting}-looking"
     files = []
     for param in params:
         vals, factor, label, figno = _SWEEPS[param]
@@ -203,8 +210,10 @@ def run_sensitivity(out: Path, params: list[str], camera=None, form: str = "auto
         roll3 = 3 * np.degrees(res["sigma_roll"])
         pitch3 = 3 * np.degrees(res["sigma_pitch"])
         fig, ax = plt.subplots(figsize=(8, 4.8))
-        ax.plot(vals, roll3, label="roll (about the viewing direction)")
-        ax.plot(vals, pitch3, label="pitch (about the horizontal axis normal to it)")
+        view = "normal to" if mounting == "side" else "along"
+        other = "along" if mounting == "side" else "normal to"
+        ax.plot(vals, roll3, label=f"roll (about the longitudinal axis, {view} the line of sight)")
+        ax.plot(vals, pitch3, label=f"pitch (about the lateral axis, {other} the line of sight)")
         ax.set_xlabel(label)
         ax.set_ylabel("expected angle error, 3 sigma [deg]")
         fixed = {"height": f"H = {base.height / 1e3:.0f} km", "fov": f"FOV = {base.fov_deg:.1f} deg",
@@ -228,8 +237,8 @@ def run_sensitivity(out: Path, params: list[str], camera=None, form: str = "auto
         msg = f"sensitivity {param}: roll {np.nanmin(roll3):.4f}..{np.nanmax(roll3):.4f} deg, " \
               f"pitch {np.nanmin(pitch3):.4f}..{np.nanmax(pitch3):.4f} deg (3 sigma)"
         if param == "fov":
-            msg += (f"; pitch minimal at {vals[np.nanargmin(pitch3)]:.0f} deg, roll minimal at "
-                    f"{vals[np.nanargmin(roll3)]:.0f} deg")
+            msg += (f"; roll minimal at {vals[np.nanargmin(roll3)]:.0f} deg, pitch minimal at "
+                    f"{vals[np.nanargmin(pitch3)]:.0f} deg")
         print(msg)
     return files
 
@@ -258,7 +267,8 @@ def run(args) -> int:
             raise UserError("--form 003 (003 eq. (22)-(24) on z = f image points) needs the pinhole "
                             "camera; with --camera use --form linear or constrained")
         params = [args.param] if args.param else list(_SWEEPS)
-        files = run_sensitivity(out, params, camera, args.form, args.aspect, args.fov_axis)
+        files = run_sensitivity(out, params, camera, args.form, args.aspect, args.fov_axis,
+                                    args.mounting)
     for f in files:
         print(f"wrote {f}")
     return 0
