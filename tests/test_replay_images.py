@@ -127,8 +127,7 @@ def test_vision_rate_decimates_frames():
 
 def test_interrupt_during_vision_keeps_processed_frames(ilog, tmp_path, monkeypatch):
     """Ctrl-C during the vision stage (in-process, at the 5th frame): a valid partial solution log
-    with the substitute-sphere vectors of the 4 frames processed, marked incomplete with a reason
-    that says so (vectors_model = sphere)."""
+    with the vectors of the 4 frames processed, marked incomplete with a reason that says so."""
     from scenarios.log_reader import read_log
     from scenarios.replay import vision_worker
     from scenarios.replay.pipeline import replay
@@ -143,17 +142,47 @@ def test_interrupt_during_vision_keeps_processed_frames(ilog, tmp_path, monkeypa
     monkeypatch.setattr(vision_worker, "process_one", once_too_often)
     out = tmp_path / "p.solution.mcap"
     with pytest.raises(KeyboardInterrupt):
-        replay(ilog, _opt(output=str(out), workers=1))
+        replay(ilog, _opt(output=str(out), workers=1, init="truth"))
     log = read_log(out)
     assert log.complete is False
     reason = log.metadata["horizon-nav.status"]["reason"]
-    assert reason.startswith("KeyboardInterrupt during vision") and "vectors_model = sphere" in reason
+    assert reason.startswith("KeyboardInterrupt during vision") and "frames processed so far" in reason
     stamps = set()
     for k in (1, 2):
         s = log.cameras[k].vectors if k in log.cameras else None
         if s is not None:
             stamps |= set(np.asarray(s.t_ns).tolist())
     assert stamps and stamps <= set(calls[:4])
+
+
+def test_triad_search_then_every_frame_with_the_attitude_prior(ilog, tmp_path, monkeypatch):
+    """Default initialisation on an image log: a sparse TRIAD search without attitude (the first
+    frame per camera and TRIAD_SEARCH_DT_S interval), then every frame of the window once with the
+    free-inertial attitude as prior, which gives the ellipsoid Earth model (geocentric nadir, 003
+    eq. (39)) and a predicted Sun direction. The prior is within a few degrees of the truth."""
+    from nav.rotation import quat_to_matrix
+    from scenarios.replay import pipeline, vision_worker
+    from scenarios.replay.inputs import load_inputs
+    jobs = []
+    real = vision_worker.process_one
+
+    def spy(job, *a, **k):
+        jobs.append(job)
+        return real(job, *a, **k)
+    monkeypatch.setattr(vision_worker, "process_one", spy)
+    rr = pipeline.replay(ilog, _opt(output=str(tmp_path / "t.solution.mcap"), workers=1, smoother=False))
+    search = [j for j in jobs if j.R_ec is None]
+    prior = [j for j in jobs if j.R_ec is not None]
+    # 10 frames (T+60..T+64, 2 cameras); search: per camera the buckets [60, 65) -> 1 frame each
+    assert len(prior) == 10 and len(search) == 2
+    assert all(r.model == "ellipsoid" for f in rr.frames for r in f.records if r.target == "earth")
+    inp = load_inputs(ilog)
+    tr = inp.truth
+    for j in prior:
+        i = int(np.argmin(np.abs(tr.t_ns - j.t_ns)))
+        R_ec_true = quat_to_matrix(tr.q_eb[i]) @ inp.cameras[j.k].R_bc
+        d = np.degrees(np.arccos(np.clip((np.trace(R_ec_true.T @ j.R_ec) - 1) / 2, -1, 1)))
+        assert d < 5.0, d   # TRIAD/truth start + free-inertial drift + the nominal mounting (1 deg/axis)
 
 
 def test_spawned_workers_match(ilog, monkeypatch):

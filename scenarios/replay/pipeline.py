@@ -3,16 +3,21 @@
 Stages (timed; ``ReplayResult.timings``):
 
 1. **read**: the log (:func:`scenarios.replay.inputs.load_inputs`), the time window, the cameras.
-2. **vision** (``--vision images``): every camera frame in the window is decoded and processed by
-   :func:`vision.frontend.process_frame` in worker processes (:mod:`.vision_worker`), with the
-   GPS position as prior (height for 003 eq. (5), latitude for the substitute sphere). With
-   ``--vision vectors`` the log's ``/camera_<k>/vectors`` are used as they are.
-3. **init**: ``truth`` (the log's /truth/state), ``given`` (a TOML file) or ``triad`` (GPS
+2. **init**: ``truth`` (the log's /truth/state), ``given`` (a TOML file) or ``triad`` (GPS
    position/velocity and TRIAD at the first epoch with a horizon and a Sun vector, back-propagated
-   to the start with the INS, 003 §7.4). For image vectors the substitute-sphere nadir is turned
-   into the geocentric nadir with the approximate attitude of a first TRIAD + free-inertial pass
-   (:func:`.vision_worker.geocentric_correction`), and TRIAD is then repeated on the corrected
-   vectors.
+   to the start with the INS, 003 §7.4). On the image path TRIAD needs vectors before any attitude
+   exists: :func:`_triad_pass` runs the vision without attitude prior (substitute sphere of 003
+   §2.8 with the Gaussian radius at the GPS latitude, no Sun gate) on one frame per camera every
+   ``TRIAD_SEARCH_DT_S`` seconds until it finds such an epoch (a few percent of the frames); the
+   nadir is turned into the geocentric one with the attitude of a first TRIAD + free-inertial pass
+   (:func:`.vision_worker.geocentric_correction`) and TRIAD repeated. The free-inertial INS from the
+   initial state then gives every frame an attitude prior (:func:`_attach_priors`).
+3. **vision** (``--vision images``): every camera frame in the window is decoded and processed by
+   :func:`vision.frontend.process_frame` in worker processes (:mod:`.vision_worker`) with the GPS
+   position and the INS attitude as prior: the ellipsoid Earth model (geocentric nadir, 003 eq.
+   (39)), the exposure-invariant limb edge (`vision.limb`) and the Sun gate around the predicted
+   Sun direction; TRIAD is repeated on these vectors. With ``--vision vectors`` the log's
+   ``/camera_<k>/vectors`` are used as they are.
 4. **filter**: :func:`nav.navigator.run` (one call over the window; it cannot be resumed).
 5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
 6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
@@ -20,8 +25,7 @@ Stages (timed; ``ReplayResult.timings``):
 
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
 (``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that
-moment: interrupted during vision, the vectors of the frames processed so far (substitute-sphere
-nadir, not yet corrected; the status reason says ``vectors_model = sphere``); during the filter or smoother,
+moment: interrupted during vision, the vectors of the frames processed so far; during the filter or smoother,
 all vectors (as given to the filter) but no solution, since the filter runs in one call; during
 writing or Rerun, the complete solution.
 """
@@ -295,15 +299,27 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     vectors = None
     res = sm = None
     try:
-        with prog.timed("vision", block=False):  # the frames are its steps
-            if mode == "images":
-                frames, vectors = _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out=frames,
-                                              progress=prog.update,
+        if mode == "images":
+            plan = _image_plan(inp, cam_numbers, opt, a, b)
+            with prog.timed("init"):
+                # an attitude first (TRIAD on a sparse pass without attitude prior, or given/truth),
+                # then every frame with the free-inertial attitude as the vision's prior
+                pre = _triad_pass(plan, inp, cam_numbers, opt, imu) if opt.init in (None, "triad") else None
+                init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, cam_numbers, mode, msgs)
+                _attach_priors(plan, imu, init, inp, cam_numbers)
+            with prog.timed("vision", block=False):  # the frames are its steps
+                frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
                                               on_pool_start=_preload_rerun if (opt.rrd != "" or opt.spawn) else None)
-            elif mode == "vectors":
+                if init_method == "triad" and vectors is not None:
+                    try:   # TRIAD again on the vectors measured with the attitude prior
+                        init, tri_init = _triad(imu, gps, vectors, [inp.cameras[k].R_bc for k in cam_numbers])
+                    except UserError as e:
+                        msgs.append(f"TRIAD on the final vectors failed ({e}); kept the first TRIAD")
+        else:
+            if mode == "vectors":
                 vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
-        with prog.timed("init"):
-            init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
+            with prog.timed("init"):
+                init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
         R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
         with prog.timed("filter"):
             try:
@@ -322,13 +338,14 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     except KeyboardInterrupt:
         prog.close()
         stage = prog.current
+        note = ""
         if stage == "vision":
             vectors = _vd([(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
                            for f in frames for r in f.records if r.camera in cam_numbers])
-            note = "; /camera_<k>/vectors: substitute-sphere nadir (vectors_model = sphere), not corrected"
+            note = "; /camera_<k>/vectors: the frames processed so far (geocentric nadir, attitude prior from the INS)"
         if stage in ("vision", "init", "filter", "smoother"):
             SL.write_vectors(w, vectors, cam_numbers)
-        w.close(complete=False, reason=f"KeyboardInterrupt during {stage}" + (note if stage == "vision" else ""))
+        w.close(complete=False, reason=f"KeyboardInterrupt during {stage}" + note)
         raise
     except BaseException:
         prog.close()
@@ -402,18 +419,24 @@ def _triad(imu, gps, vectors, R_bc):
     return ti.initial, ti
 
 
+def _free_inertial_R_eb(imu, init, t_ns) -> np.ndarray:
+    """Body attitude R_eb (n, 3, 3) at ``t_ns`` from the free-inertial INS started at ``init`` (the
+    IMU sample at or after each time; times before the start get the initial attitude)."""
+    i0 = int(np.searchsorted(imu.t_ns, init.t_ns))
+    ts = (imu.t_ns[i0:] - imu.t_ns[i0]) / NS
+    _, _, Q = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, imu.f_b[i0:], imu.w_b[i0:], sample=imu.sample)
+    j = np.clip(np.searchsorted(imu.t_ns[i0:], np.asarray(t_ns, np.int64)), 0, len(ts) - 1)
+    return quat_to_matrix(Q[j])
+
+
 def _correct_earth(vectors, imu, init, inp, R_bc):
     """Substitute-sphere -> geocentric nadir with the free-inertial attitude from ``init``."""
     from scenarios.replay.vision_worker import geocentric_correction
     m = vectors.target == "hor"
     if not m.any():
         return vectors
-    i0 = int(np.searchsorted(imu.t_ns, init.t_ns))
-    ts = (imu.t_ns[i0:] - imu.t_ns[i0]) / NS
-    _, _, Q = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, imu.f_b[i0:], imu.w_b[i0:], sample=imu.sample)
     t = vectors.t_ns[m]
-    j = np.clip(np.searchsorted(imu.t_ns[i0:], t), 0, len(ts) - 1)
-    R_eb = quat_to_matrix(Q[j])
+    R_eb = _free_inertial_R_eb(imu, init, t)
     R_bc_a = np.array(R_bc)[vectors.camera[m]]
     R_ce = np.swapaxes(R_eb @ R_bc_a, -1, -2)
     e = vectors.e_c.copy()
@@ -435,24 +458,41 @@ def _preload_rerun() -> None:
     threading.Thread(target=imp, name="preload-rerun", daemon=True).start()
 
 
-def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out, progress=None, on_pool_start=None):
-    from scenarios.replay.vision_worker import FrameJob, run_vision
+#: spacing [s] of the frames the TRIAD search looks at (the vision runs there without attitude)
+TRIAD_SEARCH_DT_S = 5.0
+#: frames per batch of the TRIAD search (it stops at the first batch that gives a TRIAD epoch)
+TRIAD_SEARCH_BATCH = 16
+
+
+@dataclass
+class _ImagePlan:
+    """The frames to process (time order) with their jobs, cameras and the vision configuration."""
+
+    jobs: list            #: vision_worker.FrameJob
+    cams: dict            #: camera number -> FisheyeCamera
+    config: object        #: vision.frontend.VisionConfig
+    images: dict          #: camera number -> image stream
+    cam_numbers: list
+
+
+def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
+    """The frames in the window (``--vision-rate``) with their GPS position and height priors."""
+    from scenarios.replay.vision_worker import FrameJob
     from scenarios.vision_config import load_vision_config
-    jobs = []
-    cams = {}
-    configs = {}
+    rows, cams, configs = [], {}, {}
     for k in cam_numbers:
         c = inp.cameras[k]
         cams[k] = c.camera
         configs[k] = load_vision_config(opt.vision_config, camera=c.camera)
-        st = c.images
-        sel = _frames_in(st.t_ns, a, b, opt.vision_rate_hz)
-        for i in sel:
-            jobs.append((int(st.t_ns[i]), k, int(i)))
-    jobs.sort()
-    if not jobs:
-        return [], None
-    t_all = np.array([j[0] for j in jobs], np.int64)
+        for i in _frames_in(c.images.t_ns, a, b, opt.vision_rate_hz):
+            rows.append((int(c.images.t_ns[i]), k, int(i)))
+    rows.sort()
+    # one config per camera only differs through the focal length; the worker takes one config
+    cfg = _targets_only(configs[cam_numbers[0]], opt.targets) if cam_numbers else None
+    plan = _ImagePlan([], cams, cfg, {k: inp.cameras[k].images for k in cam_numbers}, cam_numbers)
+    if not rows:
+        return plan
+    t_all = np.array([r[0] for r in rows], np.int64)
     if inp.gps is not None:
         x = _gps_at(inp, t_all)
     elif inp.truth is not None:
@@ -460,15 +500,77 @@ def _run_images(inp, cam_numbers, opt, a, b, tuning, frames_out, progress=None, 
     else:
         raise UserError("--vision images: the Earth fit needs the height (003 eq. (5)); the log has neither GPS nor truth")
     lat, _, h = earth.ecef_to_geodetic(x)
-    # one config per camera only differs through the focal length; the worker takes one config
-    cfg = configs[cam_numbers[0]]
-    cfg = _targets_only(cfg, opt.targets)
-    fj = [FrameJob(k, i, t, None, float(h[n]), float(lat[n])) for n, (t, k, i) in enumerate(jobs)]
-    out = run_vision(fj, cams, cfg, workers=opt.workers, progress=progress, on_result=frames_out.extend,
-                     images={k: inp.cameras[k].images for k in cam_numbers}, on_pool_start=on_pool_start)
-    rows = [(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
+    plan.jobs = [FrameJob(k, i, t, None, float(h[n]), float(lat[n]), x_e=x[n]) for n, (t, k, i) in enumerate(rows)]
+    return plan
+
+
+def _run_plan(plan: _ImagePlan, jobs, opt, frames_out=None, progress=None, on_pool_start=None):
+    from scenarios.replay.vision_worker import run_vision
+    out = run_vision(jobs, plan.cams, plan.config, workers=opt.workers, progress=progress,
+                     on_result=frames_out.extend if frames_out is not None else None,
+                     images=plan.images, on_pool_start=on_pool_start)
+    rows = [(r.t_ns, plan.cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
             for f in out for r in f.records if r.target in opt.targets]
-    return frames_out, _vd(rows)
+    return out, _vd(rows)
+
+
+def _triad_pass(plan: _ImagePlan, inp, cam_numbers, opt, imu) -> VectorData | None:
+    """Vectors for TRIAD (003 §7.4) before any attitude exists: the vision without attitude prior
+    (substitute sphere, no Sun gate) on the first frame of each camera in every
+    ``TRIAD_SEARCH_DT_S`` interval, in batches, until a batch gives an epoch with a horizon and a
+    Sun vector. Costs a few percent of the frames; every frame is processed again with the prior."""
+    from nav.initialise import first_triad_epoch
+    if not plan.jobs or not {"earth", "sun"} <= set(opt.targets):
+        return None
+    t0 = plan.jobs[0].t_ns
+    seen, pick = set(), []
+    for j in plan.jobs:
+        key = (j.k, (j.t_ns - t0) // int(TRIAD_SEARCH_DT_S * NS))
+        if key not in seen:
+            seen.add(key)
+            pick.append(j)
+    not_before = int(imu.t_ns[min(1, imu.t_ns.size - 1)])
+    rows = []
+    for i in range(0, len(pick), TRIAD_SEARCH_BATCH):
+        _, vd = _run_plan(plan, pick[i:i + TRIAD_SEARCH_BATCH], opt)
+        if vd is not None:
+            rows.append(vd)
+            allv = _vd([(t, c, g, e, P) for v in rows for t, c, g, e, P in
+                        zip(v.t_ns, v.camera, v.target, v.e_c, v.P_c)])
+            try:
+                first_triad_epoch(allv, not_before)
+                return allv
+            except ValueError:
+                continue
+    if not rows:
+        return None
+    return _vd([(t, c, g, e, P) for v in rows for t, c, g, e, P in zip(v.t_ns, v.camera, v.target, v.e_c, v.P_c)])
+
+
+def _attach_priors(plan: _ImagePlan, imu, init, inp, cam_numbers) -> None:
+    """Attitude prior of every job: the free-inertial INS from the initial state with the nominal
+    mounting (a few degrees at most: enough for the ellipsoid model, the limb's Sun-elevation test
+    and the Sun gate), and the predicted Sun direction in the camera frame."""
+    import dataclasses
+
+    from nav.ephemeris import sun_direction_e
+    if not plan.jobs:
+        return
+    t = np.array([j.t_ns for j in plan.jobs], np.int64)
+    R_eb = _free_inertial_R_eb(imu, init, t)
+    x = np.array([j.x_e for j in plan.jobs])
+    s_e = sun_direction_e(t, x)
+    for n, j in enumerate(plan.jobs):
+        R_ec = R_eb[n] @ np.asarray(inp.cameras[j.k].R_bc, float)
+        plan.jobs[n] = dataclasses.replace(j, R_ec=R_ec, sun_c=R_ec.T @ s_e[n])
+
+
+def _run_images(plan: _ImagePlan, opt, frames_out, progress=None, on_pool_start=None):
+    """Every planned frame through the vision (with the priors attached to its job)."""
+    if not plan.jobs:
+        return frames_out, None
+    _, vd = _run_plan(plan, plan.jobs, opt, frames_out, progress, on_pool_start)
+    return frames_out, vd
 
 
 def _frames_in(t_ns, a, b, rate_hz=None) -> np.ndarray:

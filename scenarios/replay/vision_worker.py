@@ -8,15 +8,18 @@ the Rerun view (edge candidates, inliers, fitted conic and vector image points i
 space, 003 figs. 15, 27) and the stage timings. With one worker (or one core) the frames are
 processed in this process, with the same code.
 
-Earth model: the replay runs the vision *before* the filter, so the frame has a position prior
-(GPS) but no attitude prior; the front end then fits the substitute sphere of 003 §2.8 with the
-Gaussian radius of curvature at the GPS latitude, whose centre lies on the local geodetic normal
-below the vehicle. :func:`geocentric_correction` turns that direction into the geocentric nadir
--x_e/|x_e| the filter observes (003 eq. (39)) with an approximate attitude (see
-:mod:`scenarios.replay.pipeline`).
+Priors: a job with a position (GPS) and an attitude prior (``x_e``, ``R_ec``: the free-inertial
+INS from the initial state, see :mod:`scenarios.replay.pipeline`) gets the ellipsoid Earth model
+(the geocentric nadir -x_e/|x_e| the filter observes, 003 eq. (39)), the exposure-invariant limb
+edge and the Sun gate around the predicted direction (``sun_c``). A job with only the GPS latitude
+(the TRIAD search before an attitude exists) gets the substitute sphere of 003 §2.8 with the
+Gaussian radius of curvature at that latitude, whose centre lies on the local geodetic normal
+below the vehicle; :func:`geocentric_correction` turns that direction into the geocentric nadir
+with an approximate attitude.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -36,6 +39,9 @@ class FrameJob:
     jpeg: bytes | None   #: None: read from the image stream given to run_vision (in the worker)
     height_m: float
     lat: float
+    x_e: np.ndarray | None = None    #: position prior [m] (GPS); with R_ec: the ellipsoid model
+    R_ec: np.ndarray | None = None   #: attitude prior camera -> e (INS); None: substitute sphere
+    sun_c: np.ndarray | None = None  #: predicted Sun direction in c (ephemeris + R_ec)
 
 
 @dataclass
@@ -104,7 +110,10 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
     t_dec = time.perf_counter() - t0
     if img is None:
         return FrameOutput(job.k, job.t_ns, [], {"frame": "JPEG could not be decoded"}, {}, {"decode": t_dec})
-    prior = FramePrior(lat=job.lat) if math.isfinite(job.lat) else None
+    if job.R_ec is not None and job.x_e is not None:
+        prior = FramePrior(x_e=job.x_e, R_ec=job.R_ec, sun_c=job.sun_c)
+    else:
+        prior = FramePrior(lat=job.lat) if math.isfinite(job.lat) else None
     h = job.height_m if math.isfinite(job.height_m) else None
     try:
         res = process_frame(img, camera, config, height_m=h, mask=mask, prior=prior,
@@ -191,8 +200,7 @@ def _run(jobs, cameras, config, masks, images, workers, chunk_size, out, progres
     rest = jobs[1:]
     ctx = _fork_context()
     if ctx is None:                       # spawned workers: ship the bytes
-        rest = [j if j.jpeg is not None else FrameJob(j.k, j.index, j.t_ns, images[j.k][j.index], j.height_m, j.lat)
-                for j in rest]
+        rest = [j if j.jpeg is not None else dataclasses.replace(j, jpeg=images[j.k][j.index]) for j in rest]
         import multiprocessing as mp
         kw = {"mp_context": mp.get_context("spawn"), "initializer": _init_spawned, "initargs": (cameras, config, masks)}
     else:
