@@ -203,3 +203,27 @@ def test_spawned_workers_match(ilog, monkeypatch):
         assert len(x.records) == len(y.records)
         for r, s in zip(x.records, y.records):
             np.testing.assert_array_equal(r.e_c, s.e_c)
+
+
+def test_sun_search_skipped_only_outside_the_field_of_view():
+    """The Sun is not searched when its predicted direction lies farther from the optical axis than
+    the widest angle in the image (fov_theta, the image corners) plus the Sun gate; just inside
+    that, and without a prediction, it is searched."""
+    import math
+
+    from scenarios.replay.vision_worker import sun_out_of_view
+    from scenarios.vision_config import load_vision_config
+    from vision.camera import atek_camera
+    cam = atek_camera()
+    cfg = load_vision_config(None, camera=cam)
+    limit = math.degrees(cam.fov_theta) + cfg.sun.gate_deg
+    assert 60.0 < limit < 70.0      # 53.5 deg to the corners + 10 deg gate
+
+    def at(deg):
+        a = math.radians(deg)
+        return np.array([math.sin(a), 0.0, math.cos(a)])
+    for deg, skipped in ((0.0, False), (limit - 0.5, False), (limit + 0.5, True), (120.0, True)):
+        c, why = sun_out_of_view(cfg, cam, at(deg))
+        assert (not c.sun.enabled) is skipped and bool(why) is skipped, deg
+        assert c.earth == cfg.earth
+    assert sun_out_of_view(cfg, cam, None) == (cfg, {})

@@ -115,6 +115,7 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
     else:
         prior = FramePrior(lat=job.lat) if math.isfinite(job.lat) else None
     h = job.height_m if math.isfinite(job.height_m) else None
+    config, skipped = sun_out_of_view(config, camera, job.sun_c)
     try:
         res = process_frame(img, camera, config, height_m=h, mask=mask, prior=prior,
                             rng=np.random.default_rng(job.t_ns % (2 ** 32)), t_ns=job.t_ns, camera_id=job.k)
@@ -122,7 +123,27 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
         return FrameOutput(job.k, job.t_ns, [], {"frame": str(e)}, {}, {"decode": t_dec})
     tim = dict(res.timings)
     tim["decode"] = t_dec
-    return FrameOutput(job.k, job.t_ns, res.records, dict(res.reasons), _overlay(camera, res), tim)
+    return FrameOutput(job.k, job.t_ns, res.records, {**skipped, **res.reasons}, _overlay(camera, res), tim)
+
+
+def sun_out_of_view(config, camera, sun_c):
+    """``(config, reasons)``: the configuration without the Sun search when the predicted Sun
+    direction ``sun_c`` is farther from the optical axis than the widest angle the image sees
+    (``camera.fov_theta``) plus the Sun gate (``gate_deg``: the front end would reject a Sun vector
+    found there anyway), with the reason; else ``(config, {})``. Saves the Sun's detection on the
+    frames without it (most of a flight)."""
+    if sun_c is None or not config.sun.enabled:
+        return config, {}
+    off = math.degrees(math.acos(max(-1.0, min(1.0, float(sun_c[2]) / float(np.linalg.norm(sun_c))))))
+    limit = math.degrees(camera.fov_theta) + config.sun.gate_deg
+    if off <= limit:
+        return config, {}
+    cfg = _STATE.get("no_sun_config")
+    if cfg is None or cfg[0] is not config:
+        cfg = (config, dataclasses.replace(config, sun=dataclasses.replace(config.sun, enabled=False)))
+        _STATE["no_sun_config"] = cfg
+    return cfg[1], {"sun": f"predicted {off:.1f} deg off the optical axis: outside the field of view "
+                           f"({limit:.1f} deg with the gate), not searched"}
 
 
 def _chunk(jobs):
