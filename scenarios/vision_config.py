@@ -32,7 +32,9 @@ _TARGET_KEYS = {"enabled", "min_pixels", "max_candidates", "score_rays", "fit_ra
                 "alpha_min_deg", "alpha_max_deg", "side_check_px", "side_check_min",
                 "side_check_rays", "edge_offset_px", "direct_outlier_fraction", "compete_fraction", "gate_deg", "curvature_tol_deg",
                 "limb_fraction", "limb_channel", "limb_height_m", "limb_height_sigma_m",
-                "limb_min_sun_elev_deg", "limb_min_used"}
+                "limb_min_sun_elev_deg", "limb_min_used", "limb_sun_path", "limb_scale_height_m",
+                "limb_sun_path_sigma", "limb_twilight_el_deg", "limb_twilight_dh_m",
+                "limb_twilight_sigma_m"}
 _OTHER = {"max_residual_rad2", "min_length_px", "search_alpha_min_deg", "search_line_spacing_px",
           "otsu_range"}
 
@@ -57,14 +59,23 @@ def _target(name: str, d: dict[str, Any], focal_px: float, where: str) -> Target
             if k in kw:
                 if not isinstance(kw[k], int) or isinstance(kw[k], bool):
                     raise ValueError(f"{k} = {kw[k]!r}; expected an integer")
+        for k in ("limb_twilight_el_deg", "limb_twilight_dh_m"):
+            if k in kw:
+                if not isinstance(kw[k], list) or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                                      for v in kw[k]):
+                    raise ValueError(f"{k} = {kw[k]!r}; expected a list of numbers")
+                kw[k] = tuple(float(v) for v in kw[k])
         for k, v in kw.items():
-            if k != "enabled" and k not in ("min_pixels", "max_candidates", "score_rays", "fit_rays",
+            if k in ("limb_twilight_el_deg", "limb_twilight_dh_m"):
+                continue
+            if k not in ("enabled", "limb_sun_path") and k not in ("min_pixels", "max_candidates", "score_rays", "fit_rays",
                                             "ransac_max_hypotheses", "side_check_rays", "limb_channel"):
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise ValueError(f"{k} = {v!r}; expected a number")
                 kw[k] = float(v)
-        if "enabled" in kw and not isinstance(kw["enabled"], bool):
-            raise ValueError(f"enabled = {kw['enabled']!r}; expected true or false")
+        for k in ("enabled", "limb_sun_path"):
+            if k in kw and not isinstance(kw[k], bool):
+                raise ValueError(f"{k} = {kw[k]!r}; expected true or false")
         if "max_residual_rad2" in d:
             kw["max_residual"] = float(d["max_residual_rad2"])
         return TargetConfig(detection=det, **kw)

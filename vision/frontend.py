@@ -74,7 +74,7 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
 from vision.covariance import direction_covariance, tangent_basis
-from vision.limb import LimbEdgeConfig, limb_edge_points, sun_elevation
+from vision.limb import LimbEdgeConfig, fraction_height_shift, limb_edge_points, sun_elevation
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
                           direction_and_radius, earth_side_check, mirrored_direction, nadir_from_horizon)
@@ -145,6 +145,16 @@ class TargetConfig:
     limb_min_used : the fraction-of-peak edge is used only when at least this fraction of the
         winner's inliers give a usable profile (not clipped, Sun high enough); else the threshold
         edge with ``atmosphere_m`` stands.
+    limb_sun_path : predict each limb point's crossing height from the Sun elevation at its
+        tangent point (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`; the
+        sunlight's own path through the lower atmosphere lifts the limb maximum) and turn its ray
+        by the shift, so one cone angle (``limb_height_m`` = the overhead-Sun height) fits all.
+    limb_scale_height_m : H of that model [m].
+    limb_sun_path_sigma : model error as a fraction of the frame's mean shift (covariance term).
+    limb_twilight_el_deg, limb_twilight_dh_m : measured correction [m] added to the model at these
+        Sun elevations [deg] (linear interpolation, 0 outside): near the terminator the model is
+        1-7 km low (docs/vision.md); ``limb_twilight_sigma_m`` the per-frame spread left after it,
+        weighted in the covariance by the share of points below the last knot.
     """
 
     enabled: bool = True
@@ -178,6 +188,12 @@ class TargetConfig:
     limb_height_sigma_m: float = 250.0
     limb_min_sun_elev_deg: float = 10.0
     limb_min_used: float = 0.1
+    limb_sun_path: bool = False
+    limb_scale_height_m: float = 8000.0
+    limb_sun_path_sigma: float = 0.2
+    limb_twilight_el_deg: tuple = ()
+    limb_twilight_dh_m: tuple = ()
+    limb_twilight_sigma_m: float = 1100.0
 
     def __post_init__(self):
         def bad(name, expected):
@@ -215,11 +231,27 @@ class TargetConfig:
             bad("limb_channel", "-1 (mean) or a channel index 0, 1, 2 of the decoded (BGR) frame")
         if not (math.isfinite(self.limb_height_m) and 0.0 <= self.limb_height_m < 200e3):
             bad("limb_height_m", "0 <= h < 200 km")
-        for name in ("limb_height_sigma_m", "limb_min_sun_elev_deg"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                bad(name, "a finite number >= 0")
+        if not (math.isfinite(self.limb_height_sigma_m) and self.limb_height_sigma_m >= 0):
+            bad("limb_height_sigma_m", "a finite number >= 0")
+        if not (math.isfinite(self.limb_min_sun_elev_deg) and -10.0 <= self.limb_min_sun_elev_deg <= 90.0):
+            bad("limb_min_sun_elev_deg", "an elevation in [-10, 90] deg (below ~-3 deg the limb's maximum is "
+                "the Earth's shadow edge)")
         if not 0.0 <= self.limb_min_used <= 1.0:
             bad("limb_min_used", "a fraction in [0, 1]")
+        if not isinstance(self.limb_sun_path, bool):
+            bad("limb_sun_path", "true or false")
+        if not (math.isfinite(self.limb_scale_height_m) and 1e3 <= self.limb_scale_height_m <= 20e3):
+            bad("limb_scale_height_m", "a scale height of 1..20 km (Earth: 7-8.5 km)")
+        if not (math.isfinite(self.limb_sun_path_sigma) and self.limb_sun_path_sigma >= 0):
+            bad("limb_sun_path_sigma", "a finite fraction >= 0 of the Sun-path shift")
+        kn, dv = tuple(self.limb_twilight_el_deg), tuple(self.limb_twilight_dh_m)
+        if (len(kn) != len(dv) or len(kn) == 1
+                or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in kn + dv)
+                or any(b <= a for a, b in zip(kn[:-1], kn[1:])) or any(abs(v) > 30e3 for v in dv)):
+            bad("limb_twilight_el_deg", "with limb_twilight_dh_m: equally long lists (>= 2 or empty) of "
+                "increasing elevations [deg] and height corrections |dh| <= 30 km [m]")
+        if not (math.isfinite(self.limb_twilight_sigma_m) and self.limb_twilight_sigma_m >= 0):
+            bad("limb_twilight_sigma_m", "a finite number >= 0")
 
 
 @dataclass(frozen=True)
@@ -250,7 +282,10 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
         min_pixels=100, max_residual=4e-6, R_px2=1.0, L_px=300.0,
         atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
-        score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5)
+        score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0,
+        limb_min_sun_elev_deg=-3.0, limb_sun_path=True,
+        limb_twilight_el_deg=(-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0),
+        limb_twilight_dh_m=(7400.0, 6900.0, 5900.0, 4700.0, 3300.0, 1500.0, 900.0, 0.0))
     sun = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
         min_pixels=12, max_residual=1e-6, R_px2=0.16, L_px=300.0, alpha_min_deg=0.2,
@@ -342,6 +377,8 @@ class TargetResult:
     baseline_e_c: np.ndarray | None = None   # general conic fit (vision.conic) on the winner
     baseline_reason: str = ""
     limb_edge: bool = False   # Earth: the fraction-of-peak limb edge was used (vision.limb)
+    limb_used: float = 0.0    # its fraction of usable limb profiles
+    limb_shift_m: float = 0.0  # mean Sun-path height shift of its points (vision.limb eq. (5))
 
 
 @dataclass
@@ -708,16 +745,39 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
 def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit):
     """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels and the refit
     with its height; None when too few limb points are usable (the caller keeps the threshold
-    edge). Returns (model, fit, uv, rays, J, inliers)."""
+    edge). Returns (model, fit, uv, rays, J, inliers, sigma_d, used_fraction, mean_shift).
+
+    With ``limb_sun_path`` each usable point's crossing height is predicted from the Sun
+    elevation at its tangent point (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`)
+    and its ray is turned towards the body by ``dh * d alpha / d d`` (`LimbModel.alpha_rate`), so
+    that all points sit at the overhead-Sun height ``limb_height_m`` of the fit (one cone angle);
+    the covariance term is then ``sigma_d^2 = limb_height_sigma_m^2 + (limb_sun_path_sigma *
+    mean dh)^2`` (the model's measured error grows with the shift, docs/vision.md)."""
     model_l, R_ec, x_e, sun_e = limb
     lc = LimbEdgeConfig(fraction=tc.limb_fraction, channel=tc.limb_channel)
     uvn, rn, ok = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc)
+    el = None
     if np.any(ok):
-        ok[ok] = sun_elevation(rn[ok] @ R_ec.T, x_e, sun_e) >= math.radians(tc.limb_min_sun_elev_deg)
+        el = sun_elevation(rn[ok] @ R_ec.T, x_e, sun_e)
+        keep = el >= math.radians(tc.limb_min_sun_elev_deg)
+        ok[ok] = keep
+        el = el[keep]
     n_ok = int(ok.sum())
     if n_ok < max(20, tc.limb_min_used * uv.shape[0]):
         return None
     rays2, J2 = unproject_jacobian(camera, uvn[ok])
+    dh = np.zeros(n_ok)
+    twi = 0.0
+    if tc.limb_sun_path:
+        dh = fraction_height_shift(np.sin(el), tc.limb_fraction, tc.limb_scale_height_m)
+        if len(tc.limb_twilight_el_deg):
+            kn = np.radians(np.asarray(tc.limb_twilight_el_deg, dtype=float))
+            dh = dh + np.interp(el, kn, np.asarray(tc.limb_twilight_dh_m, dtype=float), left=0.0, right=0.0)
+            twi = float(np.mean(el < kn[-1]))
+        delta = dh * model_l.alpha_rate                       # [rad], towards the body
+        t = e_c[None, :] - (rays2 @ e_c)[:, None] * rays2
+        t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
+        rays2 = np.cos(delta)[:, None] * rays2 + np.sin(delta)[:, None] * t
     H2 = model_l.to_fit(rays2)
     e0 = model_l.M @ e_c
     fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))
@@ -728,7 +788,10 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
         if inl.sum() < 20:
             return None
         fit = _fit(H2[inl], model_l.alpha, fit.e_c)
-    return model_l, fit, uvn[ok], rays2, J2, inl
+    shift = float(np.mean(dh[inl]))
+    sigma_d = math.sqrt(tc.limb_height_sigma_m**2 + (tc.limb_sun_path_sigma * shift)**2
+                        + (twi * tc.limb_twilight_sigma_m)**2)
+    return model_l, fit, uvn[ok], rays2, J2, inl, sigma_d, n_ok / uv.shape[0], shift
 
 
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,
@@ -796,9 +859,8 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
         lr = _limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), fit.e_c)
         timings["earth.limb"] = time.perf_counter() - t3
         if lr is not None:
-            model, fit, uv, rays_c, J, inl = lr
+            model, fit, uv, rays_c, J, inl, sigma_d, out.limb_used, out.limb_shift_m = lr
             H = model.to_fit(rays_c)
-            sigma_d = tc.limb_height_sigma_m
             out.limb_edge = True
     if is_earth:
         e_c = model.to_camera(fit.e_c)

@@ -34,19 +34,44 @@ height exists), (b) the Earth's surface merges with the limb without a dip (same
 Sun is low at the tangent point: the sunlight reaching the lower limb is then dimmed by the lower
 atmosphere, more so the lower it goes, and the maximum moves up (below the terminator it is the
 shadow edge, not the optical knee). (a), (b) are detected on the profile; (c) needs the Sun direction: `sun_elevation`
-gives the Sun elevation at each limb tangent point; low-Sun points are not used.
+gives the Sun elevation at each limb tangent point (geodetic vertical).
+
+Sun path (c) as a model rather than a cut-off
+---------------------------------------------
+The maximum of the profile exists *because* the sunlight reaching height h has itself crossed
+the air mass ``m_s(h) = Ch(mu_s) exp(-h/H)`` (mu_s = sine of the Sun elevation at the tangent
+point, Ch the Chapman function), so (1) is really
+
+    B(h) = E P T_0 (1 - exp(-u)) exp(-c u),   u = tau m(h),   c = m_s / m                 (4)
+
+with c independent of h (`sun_path_ratio`; twilight: ``m_s = 2 C exp(-(h - R mu_s^2/2)/H)``).
+The crossing of ``f max B`` on the space side of the maximum ``u* = ln((1 + c)/c)`` is a number
+``u_f(c)`` that depends on f and c only, hence
+
+    h_f(mu_s) = H ln(tau 2C) - H ln u_f(c(mu_s)) = h_f(1) - H ln(u_f(c(mu_s)) / u_f(c(1)))     (5)
+
+(`fraction_height_shift`): exposure, phase function and tau still drop out of the *shift*; only
+H enters. It agrees with the renderer's 1-D limb radiance to < 50 m (tests/test_limb_sun_path.py)
+and with the tangent heights of the fraction-of-peak edge on rendered frames to 0.2-0.7 km for
+Sun elevations of 3..30 deg; below ~3 deg it is 1..7 km low (the Sun elevation changes along the
+line of sight and down the profile near the terminator), which the front end corrects with a
+measured table (`TargetConfig.limb_twilight_*`, docs/vision.md).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from nav import earth as _earth
 from vision.camera import FisheyeCamera, project, unproject
 
-__all__ = ["LimbEdgeConfig", "limb_edge_points", "sun_elevation"]
+_EARTH_A, _EARTH_B = _earth.A, _earth.B
+
+__all__ = ["LimbEdgeConfig", "limb_edge_points", "sun_elevation", "sun_path_ratio", "fraction_height_shift"]
 
 
 @dataclass(frozen=True)
@@ -163,19 +188,82 @@ def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, r
 
 def sun_elevation(rays_e: np.ndarray, x_e: np.ndarray, sun_e: np.ndarray) -> np.ndarray:
     """Elevation [rad] of the Sun above the local horizontal at the tangent point of each ray
-    (e frame, geocentric vertical; the ellipsoid's ~0.2 deg deflection does not matter here).
+    (rays_e (m, 3) unit rays from x_e, e frame; geodetic vertical of the WGS-84 ellipsoid).
 
-    Where it is low the sunlight that reaches the lower limb has crossed the lower atmosphere
-    itself: it is attenuated by ``exp(-tau m_s(h))`` with an air mass ``m_s ~ exp(-h/H) / sin(el)``
-    that grows *downwards*, so the limb's maximum moves up and with it the fraction-of-peak
-    height (below the terminator the maximum is the shadow edge). That factor is not a constant
-    multiplier along the profile, so eq. (3) of the module docstring does not hold there: such
-    limb points are not used."""
+    The tangent point is the ray's closest approach to the ellipsoid, found in the scaled space
+    ``S = diag(1, 1, a/b)`` where the ellipsoid is the sphere of radius a (`vision.oblate`); the
+    vertical there is the ellipsoid normal ``(x/a^2, y/a^2, z/b^2)``. The geocentric vertical
+    differs by up to 0.19 deg, which matters near the terminator: the Sun-path factor of
+    `fraction_height_shift` changes by ~R mu / H ~ 800 per unit of mu there (module docstring).
+
+    Where the Sun is low the sunlight that reaches the lower limb has crossed the lower
+    atmosphere itself: it is attenuated by ``exp(-tau m_s(h))`` (module docstring, eq. (4))."""
     x = np.asarray(x_e, dtype=float)
     r = np.asarray(rays_e, dtype=float)
     s = np.asarray(sun_e, dtype=float)
     s = s / np.linalg.norm(s)
-    tc = -(r @ x)
-    T = x[None, :] + tc[:, None] * r
-    T /= np.linalg.norm(T, axis=1, keepdims=True)
-    return np.arcsin(np.clip(T @ s, -1.0, 1.0))
+    sc = np.array([1.0, 1.0, _EARTH_A / _EARTH_B])
+    xs = x * sc
+    rs = r * sc
+    rs /= np.linalg.norm(rs, axis=1, keepdims=True)
+    tc = -(rs @ xs)
+    T = (xs[None, :] + tc[:, None] * rs) / sc          # tangent point in e
+    nrm = T * np.array([1.0, 1.0, (_EARTH_A / _EARTH_B) ** 2])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.arcsin(np.clip(nrm @ s, -1.0, 1.0))
+
+
+def sun_path_ratio(mu_s: np.ndarray, scale_height_m: float = 8000.0,
+                   radius_m: float = 6371e3) -> np.ndarray:
+    """c = m_s / m of eq. (4): air mass of the sunlight reaching the limb at height h over the
+    air mass of the line of sight at tangent height h; constant along a profile.
+
+    ``m(h) = 2 C exp(-h/H)`` with ``C = sqrt(pi R / 2H)`` (the grazing Chapman air mass of one
+    half of the path). Sun above the local horizon (mu_s = sin(elevation) >= 0): the Chapman
+    function is approximated by ``Ch(mu) = 1 / sqrt(mu^2 + 1/C^2)`` (1/mu overhead, C at grazing
+    incidence), ``m_s = Ch(mu_s) exp(-h/H)``. Sun below it (twilight): the sunray through the
+    point passes its lowest point at ``h - R mu_s^2 / 2`` and crosses the full grazing path there,
+    ``m_s = 2 C exp(-(h - R mu_s^2/2)/H)`` (below ``h = R mu_s^2/2`` the point is in the Earth's
+    shadow)."""
+    mu = np.asarray(mu_s, dtype=float)
+    C = math.sqrt(math.pi * radius_m / (2.0 * scale_height_m))
+    with np.errstate(over="ignore"):
+        ch = np.where(mu >= 0.0, 1.0 / np.sqrt(mu * mu + 1.0 / (C * C)),
+                      C * np.exp(np.minimum(radius_m * mu * mu / (2.0 * scale_height_m), 50.0)))
+    return ch / (2.0 * C)
+
+
+@functools.lru_cache(maxsize=16)
+def _uf_table(fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """ln u_f over ln c on a grid (eq. (5)): the crossing of ``g(u) = (1 - e^-u) e^(-c u)`` with
+    ``fraction * max g`` on the small-u (space) side of the maximum ``u* = ln((1 + c)/c)``,
+    by bisection in ln u (60 halvings: exact to 1e-15 relative, far below the table step)."""
+    lnc = np.linspace(-12.0, 8.0, 801)
+    c = np.exp(lnc)
+    us = np.log1p(1.0 / c)
+    gmax = np.exp(-np.log1p(c) + c * (np.log(c) - np.log1p(c)))
+    lo = np.full_like(c, math.log(1e-9))
+    hi = np.log(us)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        u = np.exp(mid)
+        big = -np.expm1(-u) * np.exp(-c * u) > fraction * gmax
+        hi = np.where(big, mid, hi)
+        lo = np.where(big, lo, mid)
+    return lnc, 0.5 * (lo + hi)
+
+
+def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_m: float = 8000.0,
+                          radius_m: float = 6371e3) -> np.ndarray:
+    """Height [m] of the fraction-of-peak crossing relative to the Sun overhead (mu_s = 1), eq. (5):
+    ``h_f(mu) - h_f(1) = -H ln(u_f(c(mu)) / u_f(c(1)))``. It depends on the Sun elevation at the
+    tangent point and on H (through c, `sun_path_ratio`), not on the exposure, the phase function
+    or the optical depth tau (which only sets h_f(1), the configured ``limb_height_m``).
+    Measured on rendered frames (docs/vision.md): +0.6 km at 20 deg, +1.5 km at 8 deg, +4 km at
+    2 deg elevation."""
+    lnc, lnu = _uf_table(float(fraction))
+    c = sun_path_ratio(mu_s, scale_height_m, radius_m)
+    c1 = sun_path_ratio(np.array([1.0]), scale_height_m, radius_m)
+    lnu_mu = np.interp(np.log(np.maximum(c, 1e-300)), lnc, lnu)
+    lnu_1 = np.interp(np.log(c1), lnc, lnu)
+    return -scale_height_m * (lnu_mu - lnu_1)
