@@ -183,3 +183,18 @@ def test_overflow_and_bad_input():
         find_borders(img, 1, mask=vmask.no_mask((40, 50)))
     with pytest.raises(ValueError, match="line_spacing_px"):
         SearchConfig(line_spacing_px=0.5)
+
+
+def test_repeated_searches_start_from_clean_marks():
+    # find_borders keeps its (H, W) mark array between calls and clears the marks it set: a search
+    # after one on another frame (or one that overflowed) must equal a search on a fresh array.
+    h, w = 120, 160
+    a = _disc(h, w, 0.0, 60.0, 50.0)             # touches the left border
+    b = _disc(h, w, 159.0, 30.0, 40.0)           # touches the right border
+    rows = np.arange(0, h, 7)
+    fresh = find_borders(b, 1, rows=rows)
+    find_borders(a, 1, rows=rows)
+    assert find_borders(a, 1, config=SearchConfig(max_points=10)).overflow
+    again = find_borders(b, 1, rows=rows)
+    assert _sets(again) == _sets(fresh) == _sets(find_borders_reference(b, rows=rows))
+    assert np.array_equal(again.visited, fresh.visited)

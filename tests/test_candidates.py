@@ -218,3 +218,18 @@ def test_wrong_image_size_is_a_clear_error():
         detect(img, mask=vmask.no_mask((1080, 1920)))
     with pytest.raises(ValueError, match="polygon 0"):
         vmask.from_polygons((H, W), [[(0, 0), (1, 1)]])
+
+
+def test_shared_histogram_gives_the_same_detection():
+    # detect(..., hist=) with the frame's histogram (shared by the Earth and Sun detections of a
+    # frame) is the same detection as computing it inside; a histogram of the wrong length is refused
+    from vision.binarize import brightness_histogram
+    vv, uu = np.mgrid[0:H, 0:W]
+    img = _colour(((uu - 150.3) ** 2 + (vv - 700.0) ** 2 <= 560.0 ** 2).astype(np.uint8))
+    cfg = DetectionConfig(BinarizeConfig(threshold=100, gate_min=20.0))
+    a = detect(img, cfg)
+    b = detect(img, cfg, hist=brightness_histogram(img, cfg.binarize.sample_step))
+    assert a.brightness == b.brightness and a.threshold == b.threshold and len(a.candidates) == len(b.candidates) == 1
+    assert np.array_equal(a.candidates[0].points, b.candidates[0].points)
+    with pytest.raises(ValueError, match="hist: shape"):
+        detect(img, cfg, hist=np.zeros(256, np.int64))

@@ -46,7 +46,8 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
+import threading
+from dataclasses import dataclass
 
 import cv2
 import numba
@@ -142,7 +143,7 @@ class Borders:
     seed : (n,) int8, how the border was found: SEED_RING, SEED_MASK or SEED_LINE.
     rows : search-line rows used.
     shape : (H, W) of the image.
-    visited : (H, W) uint8 or None, nonzero on followed border pixels (for annotation).
+    visited : (H, W) uint8, 1 on the followed border pixels (for annotation; built on first use).
     n_scanned : pixels examined on the seed paths (ring, mask boundary, lines).
     n_followed : neighbour examinations made while following.
     overflow : the search stopped at ``max_points``.
@@ -153,7 +154,6 @@ class Borders:
     seed: np.ndarray
     rows: np.ndarray
     shape: tuple[int, int]
-    visited: np.ndarray | None = field(default=None, repr=False)
     n_scanned: int = 0
     n_followed: int = 0
     overflow: bool = False
@@ -175,6 +175,12 @@ class Borders:
     @property
     def lengths(self) -> np.ndarray:
         return np.diff(self.offsets)
+
+    @functools.cached_property
+    def visited(self) -> np.ndarray:
+        out = np.zeros(self.shape, np.uint8)
+        out[self.points[:, 1], self.points[:, 0]] = 1
+        return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -203,23 +209,28 @@ def _grow(buf, n):  # pragma: no cover - numba
 @numba.njit(cache=True, nogil=True)
 def _follow(img, tsum, pen, state, v0, u0, d0, buf, n, max_points, counts):  # pragma: no cover
     """Suzuki-Abe border following (003 ref. [33], Algorithm 1 step 3) from white (v0, u0) whose
-    neighbour in direction d0 is black. Appends (u, v) to buf from n; returns (buf, n, status)."""
+    neighbour in direction d0 is black. Appends (u, v) to buf from n; returns (buf, n, status).
+    The neighbour examinations are counted in a local and added to ``counts[1]`` on return (an
+    increment of the array in the inner loop is a dependency through memory on every step)."""
+    nf = 0
     # (3.1) clockwise from d0: the first white neighbour i1
     d1 = -1
     for k in range(8):
         d = (d0 + k) & 7
-        counts[1] += 1
+        nf += 1
         if _value(img, pen, v0 + _DV[d], u0 + _DU[d]) >= tsum:
             d1 = d
             break
     if d1 < 0:  # isolated pixel
         if n >= max_points:
+            counts[1] += nf
             return buf, n, _OVERFLOW
         if n >= buf.shape[0]:
             buf = _grow(buf, n)
         buf[n, 0] = u0
         buf[n, 1] = v0
         state[v0, u0] |= _VISITED | _EAST0
+        counts[1] += nf
         return buf, n + 1, _OK
     v1 = v0 + _DV[d1]
     u1 = u0 + _DU[d1]
@@ -232,7 +243,7 @@ def _follow(img, tsum, pen, state, v0, u0, d0, buf, n, max_points, counts):  # p
         nv, nu = pv, pu
         for k in range(1, 9):
             d = (dp - k) & 7
-            counts[1] += 1
+            nf += 1
             tv = cv + _DV[d]
             tu = cu + _DU[d]
             if _value(img, pen, tv, tu) >= tsum:
@@ -242,6 +253,7 @@ def _follow(img, tsum, pen, state, v0, u0, d0, buf, n, max_points, counts):  # p
                 east0 = True
         # (3.4) record and mark
         if n >= max_points:
+            counts[1] += nf
             return buf, n, _OVERFLOW
         if n >= buf.shape[0]:
             buf = _grow(buf, n)
@@ -254,15 +266,27 @@ def _follow(img, tsum, pen, state, v0, u0, d0, buf, n, max_points, counts):  # p
         state[cv, cu] = st
         # (3.5) closed?
         if nv == v0 and nu == u0 and cv == v1 and cu == u1:
+            counts[1] += nf
             return buf, n, _OK
         pv, pu = cv, cu
         cv, cu = nv, nu
 
 
 @numba.njit(cache=True, nogil=True)
-def _search(img, tsum, pen, seed_v, seed_u, seed_d, rows, max_points, follow):  # pragma: no cover
+def _search(img, tsum, pen, state, seed_v, seed_u, seed_d, rows, max_points, follow):  # pragma: no cover
+    """The search of `find_borders` with the all-zero (H, W) ``state`` (the marks of border
+    following); the marks are cleared again before returning, so that the caller can keep the
+    array for the next frame (allocating and zeroing 2 MB per call cost ~20-40 us)."""
+    pts, offsets, kinds, counts, status = _search_marked(img, tsum, pen, state, seed_v, seed_u, seed_d, rows,
+                                                         max_points, follow)
+    for i in range(pts.shape[0]):
+        state[pts[i, 1], pts[i, 0]] = 0
+    return pts, offsets, kinds, counts, status
+
+
+@numba.njit(cache=True, nogil=True)
+def _search_marked(img, tsum, pen, state, seed_v, seed_u, seed_d, rows, max_points, follow):  # pragma: no cover
     h, w, nc = img.shape
-    state = np.zeros((h, w), np.uint8)
     buf = np.empty((4096, 2), np.int32)
     offsets = np.zeros(64, np.int64)
     kinds = np.zeros(64, np.int8)
@@ -300,7 +324,7 @@ def _search(img, tsum, pen, seed_v, seed_u, seed_d, rows, max_points, follow):  
         nb += 1
         offsets[nb] = n
         if status != _OK:
-            return buf[:n], offsets[:nb + 1], kinds[:nb], state, counts, status
+            return buf[:n], offsets[:nb + 1], kinds[:nb], counts, status
     # search lines, left to right, tracking whether the black run is the background (bg)
     for r in range(rows.shape[0]):
         v = rows[r]
@@ -321,10 +345,10 @@ def _search(img, tsum, pen, seed_v, seed_u, seed_d, rows, max_points, follow):  
                 nb += 1
                 offsets[nb] = n
                 if status != _OK:
-                    return buf[:n], offsets[:nb + 1], kinds[:nb], state, counts, status
+                    return buf[:n], offsets[:nb + 1], kinds[:nb], counts, status
             u += 1
             prev = True
-    return buf[:n], offsets[:nb + 1], kinds[:nb], state, counts, status
+    return buf[:n], offsets[:nb + 1], kinds[:nb], counts, status
 
 
 @numba.njit(cache=True, nogil=True)
@@ -394,10 +418,25 @@ def find_borders(image, threshold: float, mask: PayloadMask | None = None,
     if not (0.0 <= threshold <= 255.0):
         raise ValueError(f"threshold: {threshold}, expected 0..255 (mean of the channels)")
     tsum = sum_threshold(threshold, a.shape[2])
-    pts, offs, kinds, state, counts, status = _search(
-        a, tsum, pen, sv, su, sd, rows, int(config.max_points), bool(_follow_borders))
-    return Borders(pts, offs.copy(), kinds.copy(), rows, (h, w), state,
+    state = _take_state(h, w)
+    pts, offs, kinds, counts, status = _search(
+        a, tsum, pen, state, sv, su, sd, rows, int(config.max_points), bool(_follow_borders))
+    _STATE.array = state     # cleared by the kernel: reused next call (not after an exception)
+    return Borders(pts, offs.copy(), kinds.copy(), rows, (h, w),
                    int(counts[0]), int(counts[1]), status == _OVERFLOW)
+
+
+_STATE = threading.local()
+
+
+def _take_state(h: int, w: int) -> np.ndarray:
+    """The all-zero (h, w) uint8 mark array of this thread (taken, so a nested or failed call
+    gets a fresh one)."""
+    st = getattr(_STATE, "array", None)
+    _STATE.array = None
+    if st is None or st.shape != (h, w):
+        st = np.zeros((h, w), np.uint8)
+    return st
 
 
 def find_borders_reference(binary, mask: PayloadMask | None = None, rows=None) -> Borders:

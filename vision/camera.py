@@ -30,8 +30,10 @@ inverse is not unique over the field of view and the constructor raises ValueErr
 to NaN.
 
 Unprojection (003, eq. (16): "theta is found by iteratively solving (13)") inverts the polynomial
-with a table-initialised, bracket-safeguarded Newton iteration, vectorised, to below 1e-12 rad, and
-returns unit rays (not points on the z = 1 plane, which do not exist for theta >= 90 deg).
+with a table-initialised, bracket-safeguarded Newton iteration per pixel (numba kernels, which also
+do the rest of the per-pixel arithmetic of `unproject`, `unproject_jacobian` and `project` in one
+pass), to below 1e-12 rad, and returns unit rays (not points on the z = 1 plane, which do not
+exist for theta >= 90 deg).
 """
 from __future__ import annotations
 
@@ -39,6 +41,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
+import numba
 import numpy as np
 
 __all__ = [
@@ -214,9 +217,11 @@ def radial_derivative(camera: FisheyeCamera, theta: np.ndarray) -> np.ndarray:
 
 
 _TABLES: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
+_RTABLES: dict[tuple[float, ...], tuple[float, np.ndarray, np.ndarray]] = {}
 
 
 def _table(camera: FisheyeCamera) -> tuple[np.ndarray, np.ndarray]:
+    """(r_d, theta) on a grid uniform in theta over [0, max_theta] (start of the reference inverse)."""
     key = camera.k + (camera.max_theta,)
     tab = _TABLES.get(key)
     if tab is None:
@@ -228,13 +233,46 @@ def _table(camera: FisheyeCamera) -> tuple[np.ndarray, np.ndarray]:
     return tab
 
 
+def _rtable(camera: FisheyeCamera) -> tuple[float, np.ndarray, np.ndarray]:
+    """(1 / dr, theta, dr dtheta/dr_d) on a grid uniform in r_d over [0, max_radius] (theta by the
+    reference inverse, once per camera; the slope is NaN where dr_d/dtheta = 0). The kernels find
+    the bracket of r_d by one division instead of a binary search (whose data-dependent branches
+    cost more than the Newton steps) and start from the cubic Hermite interpolant (~1e-14 rad off
+    with 4097 points), so that one Newton step reaches the root."""
+    key = camera.k + (camera.max_theta,)
+    tab = _RTABLES.get(key)
+    if tab is None:
+        r = np.linspace(0.0, camera.max_radius, _TABLE_SIZE)
+        th = _inverse_radial_reference(camera, r)
+        th[-1] = camera.max_theta
+        th = np.maximum.accumulate(th)
+        d = _dpoly(np.asarray(camera.k), th)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = np.where(d > 0.0, (camera.max_radius / (_TABLE_SIZE - 1)) / d, np.nan)
+        tab = ((_TABLE_SIZE - 1) / camera.max_radius, th, slope)
+        if len(_RTABLES) > 64:
+            _RTABLES.clear()
+        _RTABLES[key] = tab
+    return tab
+
+
 def inverse_radial(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
     """theta with r_d(theta) = r_d, inverse of 003 eq. (13) (003 eq. (16): solved iteratively).
 
-    Table interpolation for the start, then Newton steps kept inside a bisection bracket; all
-    elements are iterated together until every step is below 1e-13 rad. r_d outside
+    Table interpolation for the start, then Newton steps kept inside a bisection bracket, per
+    element (`_inverse_radial_kernel`) until the step is below 1e-13 rad. r_d outside
     [0, max_radius] gives NaN.
     """
+    r_in = np.asarray(r_d, dtype=float)
+    inv_dr, th_tab, sl_tab = _rtable(camera)
+    out = _inverse_radial_kernel(np.ascontiguousarray(r_in.ravel()), np.asarray(camera.k), inv_dr, th_tab,
+                                 sl_tab, camera.max_radius)
+    return out.reshape(r_in.shape)
+
+
+def _inverse_radial_reference(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
+    """The same inverse with all elements iterated together in numpy (the reference the kernel is
+    tested against, tests/test_camera.py)."""
     r_in = np.asarray(r_d, dtype=float)
     r = r_in.ravel()
     k = np.asarray(camera.k)
@@ -262,6 +300,149 @@ def inverse_radial(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------
+# numba kernels: the per-pixel work of unproject / unproject_jacobian / project in one pass. The
+# numpy versions made ~40 array passes (Horner, Newton iterations, where/stack) over arrays of a
+# few hundred edge pixels per call, several calls per frame (~0.1 ms each, most of it per-call
+# overhead); the kernels are one loop with the same formulas.
+
+
+@numba.njit(cache=True, nogil=True)
+def _poly1(k, t):  # pragma: no cover - numba
+    """r_d(theta) for one theta, the Horner scheme of `_poly` (same arithmetic)."""
+    t2 = t * t
+    n = k.shape[0]
+    acc = k[n - 1]
+    for i in range(n - 2, -1, -1):
+        acc = acc * t2 + k[i]
+    return acc * t
+
+
+@numba.njit(cache=True, nogil=True)
+def _dpoly1(k, t):  # pragma: no cover - numba
+    """dr_d/dtheta for one theta, the Horner scheme of `_dpoly`."""
+    t2 = t * t
+    n = k.shape[0]
+    acc = (2 * n - 1) * k[n - 1]
+    for i in range(n - 2, -1, -1):
+        acc = acc * t2 + (2 * i + 1) * k[i]
+    return acc
+
+
+@numba.njit(cache=True, nogil=True)
+def _theta1(k, r, inv_dr, th_tab, sl_tab, max_radius):  # pragma: no cover - numba
+    """theta = r_d^-1(r) for one r (NaN outside [0, max_radius]): bracket [th_tab[j], th_tab[j+1]]
+    of the grid uniform in r (`_rtable`, widened by 1e-14 rad for the rounding of its entries),
+    cubic Hermite start (linear where a slope is not finite or the cubic leaves the bracket), then
+    Newton steps; a step leaving the (shrinking) bracket is replaced by bisection. Stops when the
+    step is below _NEWTON_TOL (1e-13 rad; usually after the first step), at most 100 steps."""
+    if not (r >= 0.0 and r <= max_radius):
+        return math.nan
+    x = r * inv_dr
+    j = min(int(x), th_tab.shape[0] - 2)
+    lo, hi = th_tab[j], th_tab[j + 1]
+    t = x - j
+    m0, m1 = sl_tab[j], sl_tab[j + 1]
+    t2 = t * t
+    t3 = t2 * t
+    theta = ((2.0 * t3 - 3.0 * t2 + 1.0) * lo + (t3 - 2.0 * t2 + t) * m0
+             + (3.0 * t2 - 2.0 * t3) * hi + (t3 - t2) * m1)
+    if not (theta >= lo and theta <= hi):
+        theta = lo + (hi - lo) * t
+    lo -= 1e-14
+    hi += 1e-14
+    for _ in range(100):
+        f = _poly1(k, theta) - r
+        df = _dpoly1(k, theta)
+        if f < 0.0:
+            lo = max(lo, theta)
+        elif f > 0.0:
+            hi = min(hi, theta)
+        new = theta - f / df if df != 0.0 else math.nan
+        if not (new >= lo and new <= hi):
+            new = 0.5 * (lo + hi)
+        step = abs(new - theta)
+        theta = new
+        if step < _NEWTON_TOL:
+            break
+    return theta
+
+
+@numba.njit(cache=True, nogil=True)
+def _inverse_radial_kernel(r, k, inv_dr, th_tab, sl_tab, max_radius):  # pragma: no cover - numba
+    """`inverse_radial` of a 1-D array r."""
+    out = np.empty(r.shape[0])
+    for i in range(r.shape[0]):
+        out[i] = _theta1(k, r[i], inv_dr, th_tab, sl_tab, max_radius)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _unproject_kernel(uv, fx, fy, cx, cy, k, inv_dr, th_tab, sl_tab, max_radius, jac):  # pragma: no cover
+    """Unit rays (n, 3) of pixels uv (n, 2), and with ``jac`` their Jacobian (n, 3, 2) (else an
+    empty (0, 3, 2) array): the formulas of `unproject` / `unproject_jacobian`."""
+    n = uv.shape[0]
+    rays = np.empty((n, 3))
+    J = np.empty((n if jac else 0, 3, 2))
+    k1 = k[0]
+    k2 = k[1] if k.shape[0] > 1 else 0.0
+    c_small = k2 / k1 ** 4 + 1.0 / (6.0 * k1 ** 3)
+    for i in range(n):
+        xd = (uv[i, 0] - cx) / fx
+        yd = (uv[i, 1] - cy) / fy
+        r_d = math.hypot(xd, yd)
+        theta = _theta1(k, r_d, inv_dr, th_tab, sl_tab, max_radius)
+        st = math.sin(theta)
+        ct = math.cos(theta)
+        if not jac:
+            s = st / r_d if r_d > 0.0 else 0.0
+            rays[i, 0] = s * xd
+            rays[i, 1] = s * yd
+            rays[i, 2] = ct
+            continue
+        dth = 1.0 / _dpoly1(k, theta)
+        if theta < 1e-3:
+            s = 1.0 / k1 - c_small * r_d * r_d
+            a = -2.0 * c_small
+            b = -1.0 / (k1 * k1)
+        else:
+            s = st / r_d
+            a = (ct * dth * r_d - st) / (r_d * r_d * r_d)
+            b = -st * dth / r_d
+        rays[i, 0] = s * xd
+        rays[i, 1] = s * yd
+        rays[i, 2] = ct
+        axy = a * xd * yd
+        J[i, 0, 0] = (s + a * xd * xd) / fx
+        J[i, 0, 1] = axy / fy
+        J[i, 1, 0] = axy / fx
+        J[i, 1, 1] = (s + a * yd * yd) / fy
+        J[i, 2, 0] = b * xd / fx
+        J[i, 2, 1] = b * yd / fy
+    return rays, J
+
+
+@numba.njit(cache=True, nogil=True)
+def _project_kernel(p, fx, fy, cx, cy, k, max_theta):  # pragma: no cover - numba
+    """Pixels (n, 2) of rays p (n, 3): the formulas of `project` (NaN beyond max_theta and for
+    zero-length or straight-backward rays)."""
+    n = p.shape[0]
+    uv = np.empty((n, 2))
+    for i in range(n):
+        x, y, z = p[i, 0], p[i, 1], p[i, 2]
+        rho = math.hypot(x, y)
+        theta = math.atan2(rho, z)
+        if theta > max_theta or (rho == 0.0 and z <= 0.0):
+            uv[i, 0] = math.nan
+            uv[i, 1] = math.nan
+            continue
+        r_d = _poly1(k, theta)
+        scale = r_d / rho if rho > 0.0 else 0.0
+        uv[i, 0] = cx + fx * scale * x
+        uv[i, 1] = cy + fy * scale * y
+    return uv
+
+
+# ----------------------------------------------------------------------------------------------
 # projection
 
 
@@ -274,6 +455,14 @@ def project(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
     p = np.asarray(rays_c, dtype=float)
     if p.shape[-1] != 3:
         raise ValueError(f"project: rays_c must have shape (..., 3), got {p.shape}")
+    uv = _project_kernel(np.ascontiguousarray(p.reshape(-1, 3)), camera.fx, camera.fy, camera.cx, camera.cy,
+                         np.asarray(camera.k), camera.max_theta)
+    return uv.reshape(p.shape[:-1] + (2,))
+
+
+def _project_reference(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
+    """`project` in numpy (the reference the kernel is tested against)."""
+    p = np.asarray(rays_c, dtype=float)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     rho = np.hypot(x, y)
     theta = np.arctan2(rho, z)
@@ -288,22 +477,43 @@ def project(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
     return uv
 
 
-def _normalised(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pixels(uv: np.ndarray) -> np.ndarray:
     uv = np.asarray(uv, dtype=float)
     if uv.shape[-1] != 2:
         raise ValueError(f"unproject: uv must have shape (..., 2), got {uv.shape}")
+    return uv
+
+
+def _normalised(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    uv = _pixels(uv)
     return (uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy
+
+
+def _unproject(camera: FisheyeCamera, uv: np.ndarray, jac: bool):
+    uv = _pixels(uv)
+    inv_dr, th_tab, sl_tab = _rtable(camera)
+    rays, J = _unproject_kernel(np.ascontiguousarray(uv.reshape(-1, 2)), camera.fx, camera.fy, camera.cx,
+                                camera.cy, np.asarray(camera.k), inv_dr, th_tab, sl_tab, camera.max_radius, jac)
+    lead = uv.shape[:-1]
+    return rays.reshape(lead + (3,)), (J.reshape(lead + (3, 2)) if jac else None)
 
 
 def unproject(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
     """Unit rays (..., 3) in the camera frame for pixels (..., 2); exact inverse of `project`.
 
     Implements 003 eqs. (14)-(16) on the unit sphere (000, eq. (3)) instead of the z = f plane, so
-    theta >= 90 deg is representable. Pixels outside the valid radius give NaN.
+    theta >= 90 deg is representable. Pixels outside the valid radius give NaN. With
+    q = [(u - cx)/fx, (v - cy)/fy], r_d = |q|, theta = r_d^-1(r_d) (`inverse_radial`):
+    ray = [sin(theta) q / r_d, cos(theta)] (one numba pass, `_unproject_kernel`).
     """
+    return _unproject(camera, uv, False)[0]
+
+
+def _unproject_reference(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
+    """`unproject` in numpy with `_inverse_radial_reference` (the reference for the tests)."""
     xd, yd = _normalised(camera, uv)
     r_d = np.hypot(xd, yd)
-    theta = inverse_radial(camera, r_d)
+    theta = _inverse_radial_reference(camera, r_d)
     st = np.sin(theta)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(r_d > 0.0, st / r_d, 0.0)
@@ -317,33 +527,10 @@ def unproject_jacobian(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarra
     ray = [s q, cos theta], d(s q)/dq = s I + (s'(r_d)/r_d) q q^T,
     d cos(theta)/dq = -sin(theta) theta'(r_d) q^T / r_d, theta' = 1 / (dr_d/dtheta).
     Near the axis (theta < 1e-3) the two ratios use their series limits. Used to carry the pixel
-    noise of 003 eq. (34) (which lives in distorted pixels) onto the unit rays.
+    noise of 003 eq. (34) (which lives in distorted pixels) onto the unit rays. One numba pass
+    (`_unproject_kernel`).
     """
-    xd, yd = _normalised(camera, uv)
-    k = np.asarray(camera.k)
-    r_d = np.hypot(xd, yd)
-    theta = inverse_radial(camera, r_d)
-    st, ct = np.sin(theta), np.cos(theta)
-    dth = 1.0 / _dpoly(k, theta)  # dtheta/dr_d
-    small = theta < 1e-3
-    k1 = k[0]
-    k2 = k[1] if len(k) > 1 else 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(small, 1.0 / k1 - (k2 / k1**4 + 1.0 / (6.0 * k1**3)) * r_d**2, st / r_d)
-        a = np.where(small, -2.0 * (k2 / k1**4 + 1.0 / (6.0 * k1**3)),
-                     (ct * dth * r_d - st) / r_d**3)  # s'(r_d) / r_d
-        b = np.where(small, -1.0 / k1**2, -st * dth / r_d)  # d cos(theta)/dr_d / r_d
-    J = np.empty(xd.shape + (3, 2))
-    J[..., 0, 0] = s + a * xd * xd
-    J[..., 0, 1] = a * xd * yd
-    J[..., 1, 0] = a * xd * yd
-    J[..., 1, 1] = s + a * yd * yd
-    J[..., 2, 0] = b * xd
-    J[..., 2, 1] = b * yd
-    J[..., :, 0] /= camera.fx
-    J[..., :, 1] /= camera.fy
-    rays = np.stack([s * xd, s * yd, ct], axis=-1)
-    return rays, J
+    return _unproject(camera, uv, True)
 
 
 def pixel_rays(camera: FisheyeCamera) -> np.ndarray:

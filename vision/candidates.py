@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from vision.binarize import BinarizeConfig, as_frame, brightness_gate, brightness_histogram, resolve_threshold
@@ -90,89 +91,138 @@ def _edge_name(u: int, v: int, h: int, w: int) -> str:
     return "mask"
 
 
+_NO_FRAME = np.zeros((1, 1), np.bool_)
+
+
+@numba.njit(cache=True, nogil=True)
+def _pieces(pts, off, frame, use_frame, h, w, min_length):  # pragma: no cover - numba
+    """The candidate pieces of the concatenated border chains, in one pass (the numpy version, a
+    frame lookup, diff, cumsum and shifted comparisons over all ~10^4 border pixels plus a dozen
+    small-array steps, took ~0.3 ms per frame).
+
+    A run is a maximal sequence of interior pixels (not on the frame: ``frame[v, u]`` with a mask,
+    else the image edge ring) within one border. A run covering its whole border is closed; a
+    border's last run ending at the chain end continues with its first run starting at the chain
+    start (the chain is a cycle). Returns, for the pieces of at least ``min_length`` pixels in
+    chain order: info (k, 7) int64 = start, end (exclusive), start and end of the joined head run
+    (-1, -1 if none), border, index of the frame pixel before the start and after the end (-1 for
+    a closed piece); the arc length (k,) [px] (steps of 1 or sqrt 2; closed: plus the closing step;
+    joined: plus the step across the chain start); and the longest piece (kept or not)."""
+    n = pts.shape[0]
+    nb = off.shape[0] - 1
+    cs = np.empty(n)
+    rs = np.empty(n, np.int64)
+    re = np.empty(n, np.int64)
+    rb = np.empty(n, np.int64)
+    nr = 0
+    acc = 0.0
+    r2 = math.sqrt(2.0)
+    for b in range(nb):
+        in_run = False
+        for i in range(off[b], off[b + 1]):
+            u = pts[i, 0]
+            v = pts[i, 1]
+            if i > 0:
+                acc += r2 if abs(u - pts[i - 1, 0]) + abs(v - pts[i - 1, 1]) == 2 else 1.0
+            cs[i] = acc
+            if use_frame:
+                fr = frame[v, u]
+            else:
+                fr = u == 0 or v == 0 or u == w - 1 or v == h - 1
+            if not fr:
+                if not in_run:
+                    rs[nr] = i
+                    rb[nr] = b
+                    in_run = True
+            elif in_run:
+                re[nr] = i
+                nr += 1
+                in_run = False
+        if in_run:
+            re[nr] = off[b + 1]
+            nr += 1
+    info = np.empty((nr, 7), np.int64)
+    arc = np.empty(nr)
+    k = 0
+    longest = 0
+    r = 0
+    while r < nr:
+        b = rb[r]
+        b0, b1 = off[b], off[b + 1]
+        r1 = r
+        while r1 < nr and rb[r1] == b:
+            r1 += 1                       # runs r .. r1-1 belong to border b
+        head = -1
+        if r1 - r >= 2 and rs[r] == b0 and re[r1 - 1] == b1:
+            head = r                      # joined with the last run
+        for q in range(r, r1):
+            if q == head:
+                continue
+            s, e = rs[q], re[q]
+            length = e - s
+            closed = s == b0 and e == b1
+            j = r1 - 1 == q and head >= 0
+            if j:
+                length += re[head] - rs[head]
+            longest = max(longest, length)
+            if length < min_length:
+                continue
+            a = cs[e - 1] - cs[s]
+            if closed:
+                a += math.hypot(float(pts[s, 0] - pts[e - 1, 0]), float(pts[s, 1] - pts[e - 1, 1]))
+                info[k, 0], info[k, 1], info[k, 2], info[k, 3] = s, e, -1, -1
+                info[k, 4], info[k, 5], info[k, 6] = b, -1, -1
+            else:
+                end_idx = e
+                if j:
+                    s2, e2 = rs[head], re[head]
+                    a += (cs[e2 - 1] - cs[s2]) + math.hypot(float(pts[s2, 0] - pts[e - 1, 0]),
+                                                             float(pts[s2, 1] - pts[e - 1, 1]))
+                    end_idx = e2
+                else:
+                    s2, e2 = -1, -1
+                info[k, 0], info[k, 1], info[k, 2], info[k, 3], info[k, 4] = s, e, s2, e2, b
+                info[k, 5] = b1 - 1 if s == b0 else s - 1
+                info[k, 6] = b0 if end_idx == b1 else end_idx
+            arc[k] = a
+            k += 1
+        r = r1
+    return info[:k], arc[:k], longest
+
+
 def _split(borders: Borders, mask: PayloadMask | None, min_length: int):
-    """Candidates and the length of the longest interior piece (kept or not). Vectorised over all
-    borders: runs of interior pixels are found on the concatenated chains, then the first and last
-    run of a border are joined when they meet across the chain's start (it is a closed cycle)."""
+    """Candidates and the length of the longest interior piece (kept or not): the pieces from
+    `_pieces` (one numba pass over the concatenated chains), made into `Candidate` objects."""
     h, w = borders.shape
     pts = borders.points
     off = borders.offsets
     nb = len(borders)
     if nb == 0 or pts.shape[0] == 0:
         return [], 0
-    u, v = pts[:, 0], pts[:, 1]
     if mask is not None and mask.has_mask:
         mask.check(borders.shape)
-        fr = mask.frame[v, u]
+        frame, use_frame = mask.frame, True
     else:
-        fr = (u == 0) | (v == 0) | (u == w - 1) | (v == h - 1)
-    inner = ~fr
-    n = pts.shape[0]
-    first = np.zeros(n, np.bool_)
-    first[off[:-1]] = True
-    last = np.zeros(n, np.bool_)
-    last[off[1:] - 1] = True
-    prev_inner = np.concatenate(([False], inner[:-1])) & ~first
-    next_inner = np.concatenate((inner[1:], [False])) & ~last
-    rs = np.flatnonzero(inner & ~prev_inner)            # run starts
-    re = np.flatnonzero(inner & ~next_inner) + 1        # run ends (exclusive)
-    if rs.size == 0:
-        return [], 0
-    rb = np.searchsorted(off, rs, side="right") - 1     # border of each run
-    b0, b1 = off[rb], off[rb + 1]
-    closed = (rs == b0) & (re == b1)                     # the whole border is interior
-    # join a border's last run (ending at b1) with its first run (starting at b0) across the wrap
-    starts_at_b0 = (rs == b0) & ~closed
-    ends_at_b1 = (re == b1) & ~closed
-    tail = np.flatnonzero(ends_at_b1)                    # the run just before index tail+1 ...
-    head_of = {int(rb[i]): i for i in np.flatnonzero(starts_at_b0)}
-    length = (re - rs).astype(np.int64)
-    joined = np.full(rs.size, -1, np.int64)              # run i continues with run joined[i]
-    drop = np.zeros(rs.size, np.bool_)
-    for i in tail:
-        j = head_of.get(int(rb[i]))
-        if j is not None:
-            joined[i] = j
-            length[i] += length[j]
-            drop[j] = True
-    longest = int(length[~drop].max()) if (~drop).any() else 0
-    keep = np.flatnonzero(~drop & (length >= min_length))
-    if keep.size == 0:
-        return [], longest
-    # step lengths along the chains (1 or sqrt 2), cumulative for arc lengths
+        frame, use_frame = _NO_FRAME, False
+    info, arc, longest = _pieces(pts, off, frame, use_frame, h, w, min_length)
+    if info.shape[0] == 0:
+        return [], int(longest)
     fp = pts.astype(np.float64)
     fp.flags.writeable = False
-    step = np.zeros(n)
-    step[1:] = np.where(np.abs(np.diff(pts, axis=0)).sum(axis=1) == 2, math.sqrt(2.0), 1.0)
-    cs = np.cumsum(step)
     out: list[Candidate] = []
-    ks = keep
-    s0, e0, bb0, bb1 = rs[ks], re[ks], b0[ks], b1[ks]
-    # frame pixel before the start / after the end, cyclically within the border
-    jn = joined[ks]
-    end_idx = np.where(jn >= 0, re[np.maximum(jn, 0)], e0)   # joined: ends where the head run ends
-    before = np.where(s0 == bb0, bb1 - 1, s0 - 1)
-    after = np.where(end_idx == bb1, bb0, end_idx)
-    for k, i in enumerate(ks):
-        s, e, bi = int(rs[i]), int(re[i]), int(rb[i])
-        if closed[i]:
-            p = fp[s:e]
-            arc = float(cs[e - 1] - cs[s]) + float(math.hypot(*(p[0] - p[-1])))
-            out.append(Candidate(p, bi, True, None, None, arc))
+    for k in range(info.shape[0]):
+        s, e, s2, e2, bi, ib, ia = (int(x) for x in info[k])
+        if ib < 0:
+            out.append(Candidate(fp[s:e], bi, True, None, None, float(arc[k])))
             continue
-        arc = float(cs[e - 1] - cs[s])
-        j = int(joined[i])
-        if j >= 0:
-            s2, e2 = int(rs[j]), int(re[j])
+        if s2 >= 0:
             p = np.concatenate((fp[s:e], fp[s2:e2]))
             p.flags.writeable = False
-            arc += float(cs[e2 - 1] - cs[s2]) + float(math.hypot(*(fp[s2] - fp[e - 1])))
         else:
             p = fp[s:e]
-        qb, qa = pts[before[k]], pts[after[k]]
-        out.append(Candidate(p, bi, False, _edge_name(int(qb[0]), int(qb[1]), h, w),
-                             _edge_name(int(qa[0]), int(qa[1]), h, w), arc))
-    return out, longest
+        out.append(Candidate(p, bi, False, _edge_name(int(pts[ib, 0]), int(pts[ib, 1]), h, w),
+                             _edge_name(int(pts[ia, 0]), int(pts[ia, 1]), h, w), float(arc[k])))
+    return out, int(longest)
 
 
 def split_borders(borders: Borders, mask: PayloadMask | None = None, min_length: int = 20) -> list[Candidate]:
@@ -221,7 +271,7 @@ class Detection:
 
 
 def detect(image, config: DetectionConfig = DetectionConfig(), mask: PayloadMask | None = None,
-           expected_shape: tuple[int, int] | None = None) -> Detection:
+           expected_shape: tuple[int, int] | None = None, hist: np.ndarray | None = None) -> Detection:
     """Detection stage for one target: frame -> brightness gate -> threshold -> edge search ->
     candidates (003 §3.1, §5; 004 §2.2.1-2.2.3).
 
@@ -231,12 +281,19 @@ def detect(image, config: DetectionConfig = DetectionConfig(), mask: PayloadMask
     config : per-target configuration (the Earth and the Sun use different thresholds, 003 §5).
     mask : payload mask of the camera, or None.
     expected_shape : (H, W) the camera delivers; a frame of another size raises ValueError.
+    hist : ``brightness_histogram(image, config.binarize.sample_step)`` of this frame if already
+        computed (the Earth and Sun detections of one frame share it: it reads ~0.8 MB of the
+        frame), else None.
     """
     a = as_frame(image, expected_shape)
     if mask is not None:
         mask.check(a.shape)
     bc = config.binarize
-    hist = brightness_histogram(a, bc.sample_step)
+    if hist is None:
+        hist = brightness_histogram(a, bc.sample_step)
+    elif hist.shape != (255 * a.shape[2] + 1,):
+        raise ValueError(f"hist: shape {hist.shape}, expected ({255 * a.shape[2] + 1},) "
+                         f"(brightness_histogram of this {a.shape[2]}-channel frame)")
     gate = brightness_gate(a, bc, hist)
     if not gate.accepted:
         return Detection([], None, float("nan"), gate.brightness, gate.reason)

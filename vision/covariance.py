@@ -99,6 +99,33 @@ def _ar1_apply_2d(X, rho):
     return out
 
 
+@numba.njit(cache=True)
+def _normal_matrices(H, J, n, rho):
+    """(A^T T A + B^T T B, H^T H) for `direction_covariance` in one pass over the m rows: with
+    g_j = -n^T J_j (003 eq. (32) on the unit sphere), a_j = g_j,u h_j, b_j = g_j,v h_j (rows of
+    A, B) and T_jk = rho^|j-k| applied by the forward and backward AR(1) recursions of
+    `_ar1_apply_2d` (T X = F X + B X - X). Replaces an einsum, a concatenation, the recursions and
+    three small matrix products (~10 numpy calls on (m, 6) arrays, m <= 512, per target and frame)."""
+    m = H.shape[0]
+    AB = np.empty((m, 6))
+    N = np.zeros((3, 3))
+    for j in range(m):
+        gu = -(n[0] * J[j, 0, 0] + n[1] * J[j, 1, 0] + n[2] * J[j, 2, 0])
+        gv = -(n[0] * J[j, 0, 1] + n[1] * J[j, 1, 1] + n[2] * J[j, 2, 1])
+        for c in range(3):
+            AB[j, c] = gu * H[j, c]
+            AB[j, 3 + c] = gv * H[j, c]
+            for d in range(3):
+                N[c, d] += H[j, c] * H[j, d]
+    TAB = _ar1_apply_2d(AB, rho) if rho > 0.0 else AB.copy()
+    S = np.zeros((3, 3))
+    for j in range(m):
+        for c in range(3):
+            for d in range(3):
+                S[c, d] += AB[j, c] * TAB[j, d] + AB[j, 3 + c] * TAB[j, 3 + d]
+    return S, N
+
+
 def ar1_quadratic_form(X: np.ndarray, Y: np.ndarray, rho: float) -> np.ndarray:
     """X^T T Y for T_jk = rho^|j-k| in O(m) (X: (m, p), Y: (m, q))."""
     return np.asarray(X).T @ ar1_toeplitz_apply(Y, rho)
@@ -131,12 +158,9 @@ def direction_covariance(rays_c: np.ndarray, jac: np.ndarray, n: np.ndarray, R: 
     if not L >= 1.0:
         raise ValueError(f"direction_covariance: L = {L} px; expected >= 1 (003 eq. (35))")
     rho = 1.0 - 1.0 / L
-    g = -np.einsum("i,mij->mj", n, J)  # (m, 2), 003 eq. (32) on the unit sphere
-    AB = np.concatenate([g[:, 0:1] * H, g[:, 1:2] * H], axis=1)  # (m, 6): [A | B]
-    TAB = ar1_toeplitz_apply(AB, rho)
-    S = R * (AB[:, :3].T @ TAB[:, :3] + AB[:, 3:].T @ TAB[:, 3:])
+    S0, N = _normal_matrices(np.ascontiguousarray(H), np.ascontiguousarray(J), n, rho)
+    S = R * S0
     S = 0.5 * (S + S.T)
-    N = H.T @ H
     nn = float(np.linalg.norm(n))
     e = n / nn
     if method == "linear":

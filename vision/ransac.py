@@ -151,6 +151,20 @@ def _inlier_row(H, e, al, thr):
     return out
 
 
+@numba.njit(cache=True)
+def _count_best(counts):
+    """(number of counts >= 0, index of the first largest count): ``(counts >= 0).sum()`` and
+    ``argmax(counts)`` in one pass (three numpy calls on a 100-element array otherwise)."""
+    n_valid = 0
+    j = 0
+    for h in range(counts.shape[0]):
+        if counts[h] >= 0:
+            n_valid += 1
+        if counts[h] > counts[j]:
+            j = h
+    return n_valid, j
+
+
 def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | None = None,
                 threshold: float | np.ndarray = 1e-3, confidence: float = 0.999,
                 max_hypotheses: int = 2000, n_preverify: int = 5, batch: int = 128,
@@ -173,8 +187,12 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
     """
     H = _check_rays(rays_c)
     m = H.shape[0]
-    thr = np.ascontiguousarray(np.broadcast_to(np.asarray(threshold, dtype=float), (m,)))
-    if not np.all(thr > 0):
+    if isinstance(threshold, np.ndarray) and threshold.shape == (m,) and threshold.dtype == np.float64 \
+            and threshold.flags.c_contiguous:
+        thr = threshold           # the usual per-ray array: no copy (small-array calls dominate here)
+    else:
+        thr = np.ascontiguousarray(np.broadcast_to(np.asarray(threshold, dtype=float), (m,)))
+    if not thr.min() > 0:
         raise ValueError("ransac_cone: threshold must be > 0 [rad]")
     if not 0 < confidence < 1:
         raise ValueError(f"ransac_cone: confidence = {confidence}; expected in (0, 1)")
@@ -188,11 +206,10 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
         counts, E, AL = _score_hypotheses(H, idx, thr, -1.0 if c is None else c,
                                           0.0 if alpha is None else alpha, c is None)
         n_hyp += B
-        valid = counts >= 0
-        if not np.any(valid):
+        n_valid, j = _count_best(counts)
+        if n_valid == 0:
             continue
-        n_scored += int(valid.sum())
-        j = int(np.argmax(counts))
+        n_scored += n_valid
         if counts[j] > best_count:
             best_count, best_mask = int(counts[j]), _inlier_row(H, E[j], AL[j], thr)
             w = best_count / m
