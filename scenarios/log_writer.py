@@ -358,6 +358,24 @@ class LogWriter:
         v.update({"format": format, "data": [np.frombuffer(bytes(b), np.uint8) for b in imgs]})
         self._put(topic, "sensor_msgs/CompressedImage", t, v)
 
+    def write_payload_mask(self, k: int, t_ns: int, mask) -> None:
+        """The payload mask of camera k (003 §3.1, fig. 9: the vehicle's structure at the image
+        edge, ignored by the edge search) as one ``sensor_msgs/CompressedImage`` on
+        ``/camera_<k>/payload_mask``: a PNG of the camera's size, 255 = payload (ignored), 0 = scene;
+        ``format`` = ``"png; payload mask"``."""
+        import cv2
+        m = np.asarray(mask)
+        if m.ndim != 2 or m.size == 0:
+            raise ValueError(f"/camera_{k}/payload_mask: expected a (height, width) array, got shape {m.shape}")
+        ok, png = cv2.imencode(".png", np.where(m > 0, 255, 0).astype(np.uint8))
+        if not ok:
+            raise ValueError(f"/camera_{k}/payload_mask: PNG encoding failed")
+        topic = lf.camera_topic(k, "payload_mask")
+        t = _times(np.array([t_ns], np.int64), topic)
+        v = lf.header_values(t, lf.camera_frame(k))
+        v.update({"format": "png; payload mask", "data": [png.reshape(-1)]})
+        self._put(topic, "sensor_msgs/CompressedImage", t, v)
+
     def write_tf_static(self, t_ns: int, mounts: dict) -> None:
         """``tf2_msgs/TFMessage`` on ``/tf_static``: camera mounts, parent "body", child "camera_<k>".
 

@@ -47,7 +47,7 @@ FRAME_BODY = "body"
 FRAME_EARTH = "earth"  # ECEF (REP-105 name)
 
 #: Suffixes of the per-camera topics ``/camera_<k>/<suffix>``.
-CAMERA_SUFFIXES = ("camera_info", "image/compressed", "vectors", "truth")
+CAMERA_SUFFIXES = ("camera_info", "image/compressed", "vectors", "truth", "payload_mask")
 _CAMERA_RE = re.compile(r"^/camera_(\d+)/(camera_info|image/compressed|vectors|truth)$")
 
 
@@ -197,6 +197,7 @@ TYPE_OF_TOPIC = {
 CAMERA_TYPES = {
     "camera_info": "sensor_msgs/CameraInfo",
     "image/compressed": "sensor_msgs/CompressedImage",
+    "payload_mask": "sensor_msgs/CompressedImage",
     "vectors": f"{PKG}/DirectionVector",
     "truth": f"{PKG}/CameraTruth",
 }

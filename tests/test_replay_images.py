@@ -227,3 +227,52 @@ def test_sun_search_skipped_only_outside_the_field_of_view():
         assert (not c.sun.enabled) is skipped and bool(why) is skipped, deg
         assert c.earth == cfg.earth
     assert sun_out_of_view(cfg, cam, None) == (cfg, {})
+
+
+def test_payload_mask_from_the_log_and_from_a_file(ilog, tmp_path):
+    """The simulator writes each camera's payload mask (/camera_<k>/payload_mask, PNG) exactly as the
+    renderer draws the payload; the replay gives it to the edge search. --mask K=FILE replaces it;
+    a mask of the wrong size, an unreadable file or a camera that is not replayed is a clear error."""
+    import cv2
+
+    from scenarios import render
+    from scenarios.replay.inputs import load_inputs
+    from scenarios.replay.pipeline import _payload_masks, replay
+    inp = load_inputs(ilog)
+    for k, c in inp.cameras.items():
+        want = render.payload_mask(c.camera, render.DEFAULT_PAYLOAD_MASK)
+        assert c.mask is not None and c.mask.shape == (c.camera.height, c.camera.width)
+        np.testing.assert_array_equal(c.mask, want)
+        assert 0.01 < c.mask.mean() < 0.2       # a strip at the image edge
+    masks = _payload_masks(inp, [1, 2], {})
+    assert set(masks) == {1, 2}
+    np.testing.assert_array_equal(masks[2].mask, inp.cameras[2].mask)
+    # a file replaces the log's mask
+    f = tmp_path / "m.png"
+    half = np.zeros_like(inp.cameras[2].mask, np.uint8)
+    half[:, -300:] = 255
+    cv2.imwrite(str(f), half)
+    np.testing.assert_array_equal(_payload_masks(inp, [1, 2], {2: f})[2].mask, half > 0)
+    cv2.imwrite(str(tmp_path / "small.png"), half[:100, :100])
+    with pytest.raises(UserError, match=r"--mask 2=.*small.png: 100x100 px, expected camera 2's 1920x1080"):
+        _payload_masks(inp, [1, 2], {2: tmp_path / "small.png"})
+    with pytest.raises(UserError, match="not a readable image"):
+        _payload_masks(inp, [1, 2], {2: tmp_path / "missing.png"})
+    with pytest.raises(UserError, match=r"camera\(s\) \[3\] are not replayed"):
+        _payload_masks(inp, [1, 2], {3: f})
+    rr = replay(ilog, _opt(output=str(tmp_path / "m.solution.mcap"), workers=1, smoother=False, init="truth",
+                           masks={2: str(f)}))
+    assert len(rr.frames) == 10
+
+
+def test_mask_option_syntax():
+    import argparse
+
+    from scenarios.commands import replay as cmd
+    p = argparse.ArgumentParser()
+    cmd.add_arguments(p)
+    assert cmd.options_from_args(p.parse_args(["f.mcap", "--mask", "2=a.png", "--mask", "1=b.png"])).masks == \
+        {2: "a.png", 1: "b.png"}
+    for bad in ("a.png", "x=a.png", "2="):
+        with pytest.raises(UserError, match="expected K=FILE"):
+            cmd.options_from_args(p.parse_args(["f.mcap", "--mask", bad]))

@@ -29,6 +29,9 @@ def add_arguments(p) -> None:
     p.add_argument("--vision-config", default=None, help="vision config TOML (default: the library default)")
     p.add_argument("--vision-rate", type=float, default=None, metavar="HZ",
                    help="process at most HZ frames per second per camera (e.g. 5 for a 30 frames/s video; default: all)")
+    p.add_argument("--mask", action="append", default=[], metavar="K=FILE",
+                   help="payload mask of camera K: an image of the camera's size, non-zero = payload "
+                        "(ignored by the edge search); repeatable; default: the log's /camera_<K>/payload_mask")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--rrd", default=None, help="Rerun recording (default: next to the solution, FLIGHT.rrd)")
     p.add_argument("--no-rerun", action="store_true", help="do not write a Rerun recording")
@@ -46,10 +49,16 @@ def options_from_args(args):
         except ValueError:
             raise UserError(f"--cameras {args.cameras}: expected camera numbers, e.g. 1,2") from None
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
+    masks = {}
+    for item in getattr(args, "mask", []) or []:
+        k, sep, f = item.partition("=")
+        if not sep or not k.strip().isdigit() or not f:
+            raise UserError(f"--mask {item}: expected K=FILE, e.g. --mask 2=payload_2.png")
+        masks[int(k)] = f
     return ReplayOptions(tuning=args.tuning, t_from=args.t_from, t_to=args.t_to, cameras=cams, targets=targets,
                          init=args.init, init_file=args.init_file, smoother=args.smoother, vision=args.vision,
                          vision_config=args.vision_config, vision_rate_hz=getattr(args, "vision_rate", None),
-                         workers=args.workers, output=args.output,
+                         masks=masks, workers=args.workers, output=args.output,
                          rrd="" if args.no_rerun else args.rrd, spawn=args.spawn,
                          progress=not args.quiet and not args.json)
 

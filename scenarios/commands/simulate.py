@@ -38,12 +38,13 @@ def add_arguments(p) -> None:
 
 
 def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = None, progress=None,
-              images=None, vectors=None) -> Path:
+              images=None, vectors=None, masks=None) -> Path:
     """Write a simulated flight as a horizon-nav MCAP log (atomic: temp file, then rename).
 
     ``images``: optional iterable of ``(camera k, t_ns, jpeg bytes)`` (e.g.
     :func:`scenarios.render.render_flight_images`), consumed as a stream. ``vectors``: optional
-    :class:`scenarios.truth_vectors.TruthVectors` written to ``/camera_<k>/vectors``.
+    :class:`scenarios.truth_vectors.TruthVectors` written to ``/camera_<k>/vectors``. ``masks``:
+    optional ``{k: (H, W) bool}`` payload masks written to ``/camera_<k>/payload_mask``.
     """
     from scenarios.log_writer import LogWriter
 
@@ -65,6 +66,8 @@ def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = 
             K, D = to_opencv(c.camera)
             w.write_camera_info(c.k, np.array([t0], np.int64), c.camera.width, c.camera.height, K, D,
                                 distortion_model="equidistant")
+            if masks and c.k in masks:
+                w.write_payload_mask(c.k, t0, masks[c.k])
             ct = c.truth
             n = len(ct.t)
             w.write_camera_truth(c.k, c.t_ns, ct.nadir_c, ct.sun_c, ct.moon_c, ct.horizon_visible,
@@ -113,17 +116,19 @@ def run(args) -> int:
     try:
         flight = sim.simulate_flight(sc, args.seed, args.duration,
                                      progress=lambda f, label: progress(0.85 * f, label))
-        images = None
+        images = masks = None
         if args.images:
-            from scenarios.render import RenderOptions, render_flight_images
+            from scenarios.render import RenderOptions, payload_mask, render_flight_images
             opts = RenderOptions() if args.jpeg_quality is None else RenderOptions(jpeg_quality=args.jpeg_quality)
             images = render_flight_images(flight, options=opts, progress=not args.quiet)
+            if opts.payload_mask is not None:   # what the renderer draws the payload into
+                masks = {c.k: payload_mask(c.camera, opts.payload_mask) for c in flight.cameras}
         vectors = None
         if args.vectors:
             from scenarios.truth_vectors import flight_truth_vectors
             progress(0.86, "vectors")
             vectors = flight_truth_vectors(flight)
-        write_log(flight, out, args.truth_rate, progress, images=images, vectors=vectors)
+        write_log(flight, out, args.truth_rate, progress, images=images, vectors=vectors, masks=masks)
         progress(1.0, "done")
     finally:
         if bar is not None:

@@ -27,13 +27,16 @@ class CameraSetup:
     """Camera k (1-based): intrinsics (None without CameraInfo), nominal mount R_bc (camera -> body),
     the image stream (None without images), the log's vector series (None without vectors) and the
     simulator's per-frame truth (``/camera_<k>/truth``: ``t_ns``, unit vectors ``nadir_c``,
-    ``sun_c``, ``moon_c`` in the true camera frame; None for real flights)."""
+    ``sun_c``, ``moon_c`` in the true camera frame; None for real flights) and the payload mask
+    (``/camera_<k>/payload_mask``: (H, W) bool, True = payload, ignored by the edge search; None
+    when the log has none)."""
     k: int
     camera: object | None
     R_bc: np.ndarray | None
     images: object | None
     vectors: dict | None
     truth: dict | None = None
+    mask: np.ndarray | None = None
 
 
 @dataclass
@@ -209,7 +212,7 @@ def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cam
             for name in ("nadir_c", "sun_c", "moon_c"):
                 ct[name] = np.asarray(getattr(cl.truth, name), float).reshape(-1, 3)
         cams[k] = CameraSetup(k, cam, R_bc, cl.images if cl.images is not None and len(cl.images) else None,
-                              _vectors_of(p, log, k), ct)
+                              _vectors_of(p, log, k), ct, _payload_mask(p, log, k, cam))
     if want is not None:
         missing = sorted(want - set(cams))
         if missing:
@@ -250,3 +253,19 @@ def angle_deg(a, b) -> np.ndarray:
 
 __all__ = ["CameraSetup", "ReplayInputs", "Truth", "load_inputs", "parse_time", "read_multi", "window_imu",
            "window_gps", "camera_from_info", "TARGETS", "math"]
+
+
+def _payload_mask(path, log, k, camera) -> np.ndarray | None:
+    """The log's ``/camera_<k>/payload_mask`` (first message, PNG/JPEG, non-zero = payload) as a
+    (H, W) bool array, checked against the camera's size; None when absent."""
+    item = log.other.get(f"/camera_{k}/payload_mask")
+    if item is None or not len(item[0]):
+        return None
+    import cv2
+    m = cv2.imdecode(np.frombuffer(item[1][0], np.uint8), cv2.IMREAD_GRAYSCALE)
+    if m is None:
+        raise UserError(f"{path}: /camera_{k}/payload_mask: not a decodable image")
+    if camera is not None and m.shape != (camera.height, camera.width):
+        raise UserError(f"{path}: /camera_{k}/payload_mask: {m.shape[1]}x{m.shape[0]} px, expected the camera's "
+                        f"{camera.width}x{camera.height}")
+    return m > 0

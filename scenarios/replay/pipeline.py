@@ -66,6 +66,7 @@ class ReplayOptions:
     vision: str = "auto"               #: "auto", "images", "vectors"
     vision_config: str | None = None
     vision_rate_hz: float | None = None  #: process at most this many frames per second per camera (None: all)
+    masks: dict = field(default_factory=dict)  #: camera -> payload mask image file (overrides the log's)
     workers: int = 0
     output: str | None = None          #: solution MCAP (default FLIGHT.solution.mcap)
     rrd: str | None = None             #: Rerun file (default next to the solution); "" = none
@@ -473,6 +474,7 @@ class _ImagePlan:
     config: object        #: vision.frontend.VisionConfig
     images: dict          #: camera number -> image stream
     cam_numbers: list
+    masks: dict = field(default_factory=dict)   #: camera number -> vision.mask.PayloadMask
 
 
 def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
@@ -489,7 +491,8 @@ def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
     rows.sort()
     # one config per camera only differs through the focal length; the worker takes one config
     cfg = _targets_only(configs[cam_numbers[0]], opt.targets) if cam_numbers else None
-    plan = _ImagePlan([], cams, cfg, {k: inp.cameras[k].images for k in cam_numbers}, cam_numbers)
+    plan = _ImagePlan([], cams, cfg, {k: inp.cameras[k].images for k in cam_numbers}, cam_numbers,
+                      _payload_masks(inp, cam_numbers, opt.masks))
     if not rows:
         return plan
     t_all = np.array([r[0] for r in rows], np.int64)
@@ -504,9 +507,35 @@ def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
     return plan
 
 
+def _payload_masks(inp, cam_numbers, files: dict) -> dict:
+    """Camera -> `vision.mask.PayloadMask`: ``--mask K=FILE`` where given, else the log's
+    ``/camera_<k>/payload_mask``; cameras without either are searched without a mask."""
+    import cv2
+
+    from vision import mask as vmask
+    unknown = sorted(set(files) - set(cam_numbers))
+    if unknown:
+        raise UserError(f"--mask: camera(s) {unknown} are not replayed (cameras: {cam_numbers})")
+    out = {}
+    for k in cam_numbers:
+        m = inp.cameras[k].mask
+        if k in files:
+            img = cv2.imread(str(files[k]), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                raise UserError(f"--mask {k}={files[k]}: not a readable image")
+            cam = inp.cameras[k].camera
+            if img.shape != (cam.height, cam.width):
+                raise UserError(f"--mask {k}={files[k]}: {img.shape[1]}x{img.shape[0]} px, expected camera {k}'s "
+                                f"{cam.width}x{cam.height}")
+            m = img > 0
+        if m is not None:
+            out[k] = vmask.from_binary(m)
+    return out
+
+
 def _run_plan(plan: _ImagePlan, jobs, opt, frames_out=None, progress=None, on_pool_start=None):
     from scenarios.replay.vision_worker import run_vision
-    out = run_vision(jobs, plan.cams, plan.config, workers=opt.workers, progress=progress,
+    out = run_vision(jobs, plan.cams, plan.config, workers=opt.workers, progress=progress, masks=plan.masks,
                      on_result=frames_out.extend if frames_out is not None else None,
                      images=plan.images, on_pool_start=on_pool_start)
     rows = [(r.t_ns, plan.cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
