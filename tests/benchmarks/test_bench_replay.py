@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-CACHE_VERSION = 1
+CACHE_VERSION = 2   # 2: logs with /camera_<k>/payload_mask
 
 
 def _cache() -> Path:
