@@ -437,7 +437,7 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
         if include_images:
             cam = lf.parse_camera_topic(topic)
             stream = ImageStream(topic, rd, t[order], loc[order])
-            if cam:
+            if cam and cam[1] == "image/compressed":
                 log.images[cam[0]] = stream
             else:
                 log.other[topic] = (stream.t_ns, stream)

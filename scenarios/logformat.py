@@ -48,7 +48,7 @@ FRAME_EARTH = "earth"  # ECEF (REP-105 name)
 
 #: Suffixes of the per-camera topics ``/camera_<k>/<suffix>``.
 CAMERA_SUFFIXES = ("camera_info", "image/compressed", "vectors", "truth", "payload_mask")
-_CAMERA_RE = re.compile(r"^/camera_(\d+)/(camera_info|image/compressed|vectors|truth)$")
+_CAMERA_RE = re.compile(r"^/camera_(\d+)/(" + "|".join(map(re.escape, CAMERA_SUFFIXES)) + r")$")
 
 
 def camera_frame(k: int) -> str:

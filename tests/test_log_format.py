@@ -12,6 +12,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -61,6 +62,7 @@ def _data(rng, n_imu=2000):
         "K": np.array([[900.0, 0, 959.5], [0, 901.0, 539.5], [0, 0, 1]]),
         "D": np.array([-0.3, 0.1, 1e-4, -2e-4, -0.02]),
         "jpegs": [bytes(rng.integers(0, 256, 1000 + 37 * i, dtype=np.uint8)) for i in range(5)],
+        "mask": rng.random((108, 192)) > 0.8,
     }
 
 
@@ -81,6 +83,7 @@ def _write_all(path, d, **kw):
                             alpha=al)
             w.write_camera_truth(k, *d["ctruth"])
             w.write_image(k, T0 + np.arange(5, dtype=np.int64) * 10**9 + k, d["jpegs"])
+            w.write_payload_mask(k, T0 + k, d["mask"])
         t, p, v, q, cov, st, names = d["nav"]
         for topic in lf.NAV_TOPICS:
             w.write_nav(topic, t, p, v, q, cov, state=st, state_names=names)
@@ -150,6 +153,10 @@ def test_round_trip_every_topic_bit_identical(full_log):
         assert len(cam.images) == 5 and [cam.images[i] for i in range(5)] == d["jpegs"]
         _eq(cam.images.t_ns, T0 + np.arange(5) * 10**9 + k)
         assert cam.images.format(0) == "jpeg"
+        t_m, m_stream = log.other[f"/camera_{k}/payload_mask"]     # PNG: lossless
+        assert t_m.tolist() == [T0 + k] and m_stream.format(0) == "png; payload mask"
+        m = cv2.imdecode(np.frombuffer(m_stream[0], np.uint8), cv2.IMREAD_GRAYSCALE)
+        np.testing.assert_array_equal(m > 0, d["mask"])
         tf = log.tf_static[f"camera_{k}"]
         assert tf.parent == "body" and tf.t_ns == T0
     _eq(log.tf_static["camera_1"].q, [0, 0, 0.38268343236508984, 0.9238795325112867])
