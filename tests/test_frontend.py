@@ -282,3 +282,36 @@ def test_annotate_draws_the_fitted_conic_on_the_limb(geo_frames):
     cls = (fr.pixel_class == 1).astype(np.uint8)
     dist = cv2.distanceTransform(1 - cls, cv2.DIST_L2, 3) + cv2.distanceTransform(cls, cv2.DIST_L2, 3)
     assert np.percentile(dist[magenta], 95) < 3.0
+
+
+def test_earth_gate_rejects_a_nadir_far_from_the_predicted_one(geo_frames):
+    """Earth gate (`TargetConfig.gate_deg` with a prior x_e, R_ec): the attitude prior is turned by
+    psi about an axis normal to the true nadir, so the predicted geocentric nadir
+    R_ec.T (-x_e/|x_e|) is psi away from the true one, while the edge still fits the true nadir
+    (the prior enters the fit only through the ellipsoid's flattening: below 2 f |psi|, 0.1 deg at 15 deg).
+    psi = 15 deg > gate 10 deg: no vector, reason names the gate; psi = 3 deg (the replay's
+    free-inertial prior): accepted, and gate 20 deg accepts the 15 deg case (the vector is the
+    true nadir to < 2 f |psi| + the 0.01 deg pixel floor)."""
+    from nav.rotation import rotvec_to_matrix
+
+    R, x, fr = geo_frames[0]
+    e_true = np.asarray(fr.e_c_earth, dtype=float)
+    axis = np.cross(e_true, [0.0, 0.0, 1.0])
+    axis /= np.linalg.norm(axis)
+    cfg = geometric_config()
+    for psi_deg, gate, accepted in ((15.0, 10.0, False), (3.0, 10.0, True), (15.0, 20.0, True)):
+        R_wrong = R @ rotvec_to_matrix(math.radians(psi_deg) * axis)
+        pred = R_wrong.T @ (-x / np.linalg.norm(x))
+        assert abs(angle_deg(pred, e_true) - psi_deg) < 1e-6
+        c = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, gate_deg=gate))
+        res = process_frame(fr.image, CAM, c, prior=FramePrior(x, R_wrong), rng=np.random.default_rng(1))
+        rec = res.record("earth")
+        if accepted:
+            assert rec is not None, res.reasons
+            assert angle_deg(rec.e_c, e_true) < 0.01 + 2 * earth.F * psi_deg   # measured 0.07 at 15 deg
+        else:
+            assert rec is None
+            assert "from the predicted nadir > gate_deg 10" in res.reasons["earth"], res.reasons["earth"]
+    # the true prior passes the default gate
+    res = process_frame(fr.image, CAM, cfg, prior=FramePrior(x, R), rng=np.random.default_rng(1))
+    assert res.record("earth") is not None and cfg.earth.gate_deg == 10.0

@@ -19,7 +19,7 @@ Pipeline per target (`process_frame`)
    (mean squared angular distance of the inliers from the cone, `vision.nadir.angle_residual`)
    below ``max_residual`` (003 §7.3, re-derived below), Sun/Moon apparent radius inside
    ``[alpha_min, alpha_max]``, within ``gate_deg`` of a predicted direction when the prior gives
-   one, a disc that is bright inside and dark around (`_disc_check`), the implied conic passes through the image (003 §3.3 sanity check),
+   one (Sun/Moon: ephemeris + attitude; Earth: the geocentric nadir from x_e and R_ec), a disc that is bright inside and dark around (`_disc_check`), the implied conic passes through the image (003 §3.3 sanity check),
    and the mirrored-nadir test (002 §3): pixels a few pixels on the body side of the edge must be
    bright and those on the space side dark (`vision.nadir.earth_side_check`); a fit that fails it
    is retried from its mirror image (`vision.nadir.mirrored_direction`, refined locally).
@@ -112,8 +112,11 @@ class TargetConfig:
     side_check_px : step [px] from the edge to the pixels of the mirrored-nadir test (002).
     side_check_min : fraction of those pixels that must be on their expected side.
     side_check_rays : edge pixels probed by that test.
-    gate_deg : Sun/Moon: largest angle from the predicted direction (`FramePrior.sun_c`,
-        ``moon_c``) when one is given; covers attitude-prior and mounting errors of a few degrees.
+    gate_deg : largest angle of an accepted vector from the predicted direction when the prior
+        gives one: Sun/Moon `FramePrior.sun_c`, ``moon_c``; Earth the geocentric nadir
+        ``R_ec.T @ (-x_e / |x_e|)`` when the prior has x_e and R_ec (a glare edge that fits a cone
+        of the Earth's radius elsewhere, 78 deg off in a replay, is rejected). Covers
+        attitude-prior and mounting errors of a few degrees.
     fit_rays : most pixels of the winning edge used for the final fit and covariance (spread
         along it; the correlation length is scaled with the step, so the covariance of the
         correlated noise (003 eq. (34)) is that of the full edge, module docstring).
@@ -155,6 +158,16 @@ class TargetConfig:
         Sun elevations [deg] (linear interpolation, 0 outside): near the terminator the model is
         1-7 km low (docs/vision.md); ``limb_twilight_sigma_m`` the per-frame spread left after it,
         weighted in the covariance by the share of points below the last knot.
+    limb_calibrate_below : when fewer than this fraction of the winner's inliers give a usable
+        limb profile (a clipped limb maximum, a twilight limb: a short arc), but at least
+        ``limb_calibrate_min_points`` do, the threshold edge is *calibrated* on the same frame
+        instead: at each usable point the threshold pixel lies ``a_i`` [rad] outside its
+        fraction-of-peak crossing, whose height is known (``limb_height_m`` + Sun-path shift), so
+        the threshold edge's effective thickness there is ``d_i = h_i + a_i / (d alpha / d d)``;
+        their median ``d_thr`` replaces ``atmosphere_m`` and the *whole* threshold arc is fitted
+        with it (a long arc instead of the short usable one). 0 = off. The covariance term is
+        ``limb_calibrate_sigma_m`` (measured spread of ``d_thr`` against the true mean height of
+        the threshold edge, docs/vision.md) with the spread of the d_i over sqrt(n) added.
     """
 
     enabled: bool = True
@@ -194,6 +207,9 @@ class TargetConfig:
     limb_twilight_el_deg: tuple = ()
     limb_twilight_dh_m: tuple = ()
     limb_twilight_sigma_m: float = 1100.0
+    limb_calibrate_below: float = 0.0
+    limb_calibrate_min_points: int = 20
+    limb_calibrate_sigma_m: float = 1500.0
 
     def __post_init__(self):
         def bad(name, expected):
@@ -252,6 +268,12 @@ class TargetConfig:
                 "increasing elevations [deg] and height corrections |dh| <= 30 km [m]")
         if not (math.isfinite(self.limb_twilight_sigma_m) and self.limb_twilight_sigma_m >= 0):
             bad("limb_twilight_sigma_m", "a finite number >= 0")
+        if not 0.0 <= self.limb_calibrate_below <= 1.0:
+            bad("limb_calibrate_below", "a fraction in [0, 1] (0 = off)")
+        if not (isinstance(self.limb_calibrate_min_points, int) and self.limb_calibrate_min_points >= 3):
+            bad("limb_calibrate_min_points", "an integer >= 3")
+        if not (math.isfinite(self.limb_calibrate_sigma_m) and self.limb_calibrate_sigma_m >= 0):
+            bad("limb_calibrate_sigma_m", "a finite number >= 0")
 
 
 @dataclass(frozen=True)
@@ -285,7 +307,8 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
         score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0,
         limb_min_sun_elev_deg=-3.0, limb_sun_path=True,
         limb_twilight_el_deg=(-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0),
-        limb_twilight_dh_m=(7400.0, 6900.0, 5900.0, 4700.0, 3300.0, 1500.0, 900.0, 0.0))
+        limb_twilight_dh_m=(7400.0, 6900.0, 5900.0, 4700.0, 3300.0, 1500.0, 900.0, 0.0),
+        limb_calibrate_below=0.1, limb_calibrate_sigma_m=3000.0)
     sun = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
         min_pixels=12, max_residual=1e-6, R_px2=0.16, L_px=300.0, alpha_min_deg=0.2,
@@ -306,7 +329,9 @@ class FramePrior:
     alone selects the Gaussian radius of curvature for the spherical model. ``sun_c``, ``moon_c``:
     predicted unit directions in the camera frame (ephemeris + attitude prior, e.g.
     ``R_ec.T @ nav.ephemeris.sun_direction_e(t, x_e)``): Sun/Moon candidates further than
-    ``TargetConfig.gate_deg`` from them are rejected (lens-flare ghosts, glints; 004 §3.4)."""
+    ``TargetConfig.gate_deg`` from them are rejected (lens-flare ghosts, glints; 004 §3.4); with
+    x_e and R_ec, Earth candidates further than the Earth's ``gate_deg`` from the predicted
+    geocentric nadir ``R_ec.T @ (-x_e / |x_e|)`` are rejected too (glare edges)."""
 
     x_e: np.ndarray | None = None
     R_ec: np.ndarray | None = None
@@ -379,6 +404,9 @@ class TargetResult:
     limb_edge: bool = False   # Earth: the fraction-of-peak limb edge was used (vision.limb)
     limb_used: float = 0.0    # its fraction of usable limb profiles
     limb_shift_m: float = 0.0  # mean Sun-path height shift of its points (vision.limb eq. (5))
+    limb_path: str = ""       # Earth: "limb" (fraction-of-peak edge), "calibrated" (threshold edge
+    # with d calibrated on the usable limb profiles), "" (threshold edge with atmosphere_m)
+    limb_d_m: float = math.nan  # calibrated effective thickness d_thr of the threshold edge [m]
 
 
 @dataclass
@@ -731,6 +759,15 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
         res.reason = (f"wrong side (002 mirrored nadir): {side:.2f} of the pixels beside the edge "
                       f"agree < {tc.side_check_min:g}")
         return res
+    if alpha is not None and predicted is not None:
+        # Earth gate: the geocentric nadir predicted by the prior (x_e, R_ec); a glare or cloud
+        # edge that happens to fit a cone of the right radius points elsewhere
+        e_cam = model.to_camera(fit.e_c)
+        off = math.degrees(math.acos(max(-1.0, min(1.0, float(e_cam @ predicted)))))
+        if off > tc.gate_deg:
+            res.reason = (f"{off:.1f} deg from the predicted nadir > gate_deg {tc.gate_deg:g} "
+                          f"(glare or cloud edge?)")
+            return res
     if res.residual > tc.max_residual:
         res.reason = f"residual {res.residual:.3g} rad^2 > max_residual {tc.max_residual:.3g}"
         return res
@@ -742,7 +779,7 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     return res
 
 
-def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit):
+def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit, J=None):
     """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels and the refit
     with its height; None when too few limb points are usable (the caller keeps the threshold
     edge). Returns (model, fit, uv, rays, J, inliers, sigma_d, used_fraction, mean_shift).
@@ -755,7 +792,7 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     mean dh)^2`` (the model's measured error grows with the shift, docs/vision.md)."""
     model_l, R_ec, x_e, sun_e = limb
     lc = LimbEdgeConfig(fraction=tc.limb_fraction, channel=tc.limb_channel)
-    uvn, rn, ok = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc)
+    uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True)
     el = None
     if np.any(ok):
         el = sun_elevation(rn[ok] @ R_ec.T, x_e, sun_e)
@@ -763,17 +800,24 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
         ok[ok] = keep
         el = el[keep]
     n_ok = int(ok.sum())
-    if n_ok < max(20, tc.limb_min_used * uv.shape[0]):
+    m = uv.shape[0]
+    used = n_ok / max(m, 1)
+    calibrate = (tc.limb_calibrate_below > 0 and used < tc.limb_calibrate_below
+                 and n_ok >= tc.limb_calibrate_min_points and J is not None)
+    if not calibrate and n_ok < max(20, tc.limb_min_used * m):
         return None
-    rays2, J2 = unproject_jacobian(camera, uvn[ok])
     dh = np.zeros(n_ok)
     twi = 0.0
-    if tc.limb_sun_path:
+    if tc.limb_sun_path and n_ok:
         dh = fraction_height_shift(np.sin(el), tc.limb_fraction, tc.limb_scale_height_m)
         if len(tc.limb_twilight_el_deg):
             kn = np.radians(np.asarray(tc.limb_twilight_el_deg, dtype=float))
             dh = dh + np.interp(el, kn, np.asarray(tc.limb_twilight_dh_m, dtype=float), left=0.0, right=0.0)
             twi = float(np.mean(el < kn[-1]))
+    if calibrate:
+        return _calibrated_threshold_refit(tc, model_l, uv, rays_c, J, pa, e_c, rn[ok], ok, dh, used)
+    rays2, J2 = rn[ok], Jn[ok]
+    if tc.limb_sun_path:
         delta = dh * model_l.alpha_rate                       # [rad], towards the body
         t = e_c[None, :] - (rays2 @ e_c)[:, None] * rays2
         t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
@@ -791,7 +835,46 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     shift = float(np.mean(dh[inl]))
     sigma_d = math.sqrt(tc.limb_height_sigma_m**2 + (tc.limb_sun_path_sigma * shift)**2
                         + (twi * tc.limb_twilight_sigma_m)**2)
-    return model_l, fit, uvn[ok], rays2, J2, inl, sigma_d, n_ok / uv.shape[0], shift
+    return model_l, fit, uvn[ok], rays2, J2, inl, sigma_d, used, shift, "limb", math.nan
+
+
+def _turn_towards(rays: np.ndarray, e_c: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Unit rays turned by ``delta`` [rad] towards the direction e_c (great circle through each)."""
+    t = e_c[None, :] - (rays @ e_c)[:, None] * rays
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
+    return np.cos(delta)[:, None] * rays + np.sin(delta)[:, None] * t
+
+
+def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c, J, pa, e_c, rays_limb,
+                                ok, dh, used):
+    """Threshold edge calibrated with the usable limb profiles of the same frame
+    (``TargetConfig.limb_calibrate_below``): ``d_i = h_i + a_i / alpha_rate`` at the usable points
+    (h_i = ``limb_height_m`` + Sun-path shift: the known height of the fraction-of-peak crossing;
+    a_i the angle from it out to the threshold pixel), ``d_thr = median(d_i)``, and every
+    threshold ray turned towards the body by ``(d_thr - limb_height_m) alpha_rate`` so that the
+    whole arc fits the cone of ``limb_height_m`` (`LimbModel.alpha_rate`, as for the Sun-path
+    shift). None when the refit keeps fewer than 20 inliers."""
+    rate = model_l.alpha_rate
+    a = np.arccos(np.clip(np.sum(rays_c[ok] * rays_limb, axis=1), -1.0, 1.0))
+    # sign: positive when the limb crossing lies towards the body from the threshold pixel
+    a = np.where(rays_limb @ e_c >= rays_c[ok] @ e_c, a, -a)
+    d_i = tc.limb_height_m + dh + a / rate
+    d_thr = _median(d_i)
+    mad = 1.4826 * _median(np.abs(d_i - d_thr))
+    rays2 = _turn_towards(rays_c, e_c, np.full(rays_c.shape[0], (d_thr - tc.limb_height_m) * rate))
+    H2 = model_l.to_fit(rays2)
+    e0 = model_l.M @ e_c
+    fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))
+    thr = tc.ransac_threshold_px * pa
+    inl = np.ones(rays2.shape[0], bool)
+    for _ in range(2):
+        inl = np.abs(angle_residuals(H2, fit.e_c, fit.alpha)) <= thr
+        if inl.sum() < 20:
+            return None
+        fit = _fit(H2[inl], model_l.alpha, fit.e_c)
+    sigma_d = math.sqrt(tc.limb_calibrate_sigma_m**2 + mad**2 / d_i.size)
+    return (model_l, fit, uv, rays2, J, inl, sigma_d, used, float(np.mean(dh)) if dh.size else 0.0,
+            "calibrated", d_thr)
 
 
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,
@@ -856,10 +939,11 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
     L_eff = max(1.0, tc.L_px / step)
     sigma_d = tc.atmosphere_sigma_m
     if is_earth and limb is not None and tc.limb_fraction > 0:
-        lr = _limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), fit.e_c)
+        lr = _limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), fit.e_c,
+                         J[inl])
         timings["earth.limb"] = time.perf_counter() - t3
         if lr is not None:
-            model, fit, uv, rays_c, J, inl, sigma_d, out.limb_used, out.limb_shift_m = lr
+            model, fit, uv, rays_c, J, inl, sigma_d, out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr
             H = model.to_fit(rays_c)
             out.limb_edge = True
     if is_earth:
@@ -969,6 +1053,9 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
         if not tc.enabled:
             continue
         pred = None
+        if name == "earth" and prior is not None and prior.x_e is not None and prior.R_ec is not None:
+            x = np.asarray(prior.x_e, dtype=float)
+            pred = np.asarray(prior.R_ec, dtype=float).T @ (-x / np.linalg.norm(x))
         if prior is not None and name != "earth":
             pred = prior.sun_c if name == "sun" else prior.moon_c
             if pred is not None:
