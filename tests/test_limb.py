@@ -115,3 +115,51 @@ def test_bilinear_gather_equals_cv2_remap_of_the_float_plane():
         v = _bilinear(image, ch, qx, qy)
         assert np.max(np.abs(v - ref)) < 1e-4
         assert np.array_equal(v >= 0, ref >= 0)
+
+
+def test_profile_kernel_equals_the_array_version():
+    """`vision.limb._limb_profiles` (one pass per profile, samples up to the first drop, tone curve
+    at a few samples) against the former all-sample array version
+    `_profile_crossings_reference`, on a synthetic frame of limb-like profiles (exponential tail
+    into space, a maximum, a drop onto the surface) with noise, clipped maxima, profiles without
+    a drop, profiles crossing the image border, NaN normals; red, channel mean and a grey frame.
+    Same usable set; crossings equal to the float32 rounding of the tone curve (numpy's SIMD
+    float32 power and libm's powf differ by 1 ulp ~ 1.2e-7 relative; at the crossing slope of
+    these profiles that is < 1e-4 px)."""
+    from vision.limb import _profile_crossings, _profile_crossings_reference
+
+    rng = np.random.default_rng(5)
+    h, w = 160, 240
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    # a circular limb about (120, 400) of radius 330: distance inside the limb d [px]
+    d = 330.0 - np.hypot(xx - 120.0, yy - 400.0)
+    lin = np.where(d < 0, np.exp(d / 3.0), np.where(d < 12, 1.0 - 0.03 * d, 0.4))   # tail, maximum, surface
+    lin = lin * (0.55 + 0.5 * (xx / w)[..., None].squeeze())                          # peak brightness varies
+    lin[:, 200:] = np.where(d[:, 200:] < 0, lin[:, 200:], 0.95)                       # no drop on the right
+    img8 = np.clip(255.0 * lin ** (1 / 2.2) + rng.normal(0, 1.5, lin.shape), 0, 255).astype(np.uint8)
+    img = np.repeat(img8[..., None], 3, axis=2)
+    img[:, :, 0] = np.clip(img8 * 0.8, 0, 255).astype(np.uint8)
+    img[:, 60:90, 2] = np.maximum(img[:, 60:90, 2], np.where(d[:, 60:90] > 2, 252, 0)).astype(np.uint8)  # clipped
+    # edge pixels along the threshold contour, normals towards the body (the limb centre)
+    ang = np.linspace(-0.45, 0.45, 300)
+    uv = np.stack([120.0 + 336.0 * np.sin(ang), 400.0 - 336.0 * np.cos(ang)], axis=1)
+    uv += rng.uniform(-0.5, 0.5, uv.shape)
+    n = np.array([120.0, 400.0]) - uv
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n[7] = np.nan
+    keep = (uv[:, 0] > -5) & (uv[:, 0] < w + 5) & (uv[:, 1] > -5) & (uv[:, 1] < h + 5)
+    uv, n = uv[keep], n[keep]
+    s = np.arange(-6, 61, dtype=float)
+    ends = np.concatenate([uv + s[0] * n, uv + s[-1] * n])
+    near_border = ((ends[:, 0] < 0.5) | (ends[:, 0] > w - 1.5) | (ends[:, 1] < 0.5) | (ends[:, 1] > h - 1.5))
+    assert near_border.sum() >= 10       # the kernel's all-sample path (the "inside" test) is exercised
+    n_ok = 0
+    for image, ch in ((img, 2), (img, -1), (img[..., 1].copy(), 0)):
+        cfg = LimbEdgeConfig(channel=ch)
+        sc, ok = _profile_crossings(image, uv, n, s, cfg)
+        sc_r, ok_r = _profile_crossings_reference(image, uv, n, s, cfg)
+        assert np.array_equal(ok, ok_r)
+        assert np.max(np.abs(sc[ok] - sc_r[ok])) < 1e-4
+        assert 0 < ok.sum() < ok.size - 20    # usable and unusable profiles both present
+        n_ok += ok.sum()
+    assert n_ok > 150

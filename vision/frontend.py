@@ -4,7 +4,7 @@ direction vectors with covariances (003 §3, §5; 000 §2.3-2.4; 002 §3; 004 §
 Pipeline per target (`process_frame`)
 -------------------------------------
 1. Detection (`vision.candidates.detect`): brightness gate, threshold, border-following edge
-   search. Earth: image border and payload-mask boundary only (003 §3.1); Sun/Moon: plus search
+   search (one brightness histogram per frame, shared by the targets). Earth: image border and payload-mask boundary only (003 §3.1); Sun/Moon: plus search
    lines ``2 f tan(alpha_min)`` apart (003 §5).
 2. Candidate scoring, cheap: each candidate (longest first, at most ``max_candidates``; after
    one is accepted, only those at least ``compete_fraction`` as long) is subsampled to at most
@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from vision.binarize import BinarizeConfig
+from vision.binarize import BinarizeConfig, as_frame, brightness_histogram
 from vision.borders import SearchConfig, search_line_spacing
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
@@ -77,7 +77,7 @@ from vision.covariance import direction_covariance, tangent_basis
 from vision.limb import LimbEdgeConfig, fraction_height_shift, limb_edge_points, sun_elevation
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
-                          direction_and_radius, earth_side_check, mirrored_direction, nadir_from_horizon)
+                          direction_and_radius, mirrored_direction, nadir_from_horizon)
 from vision.oblate import LimbModel, ellipsoid_model, sphere_model
 from vision.ransac import pixel_angle, ransac_cone
 
@@ -480,14 +480,6 @@ def _in_image(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
                 & (uv[..., 1] >= -0.5) & (uv[..., 1] <= camera.height - 0.5))
 
 
-def _brightness_at(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Mean-channel brightness at the nearest pixels (uv inside the image)."""
-    iu = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, image.shape[1] - 1)
-    iv = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, image.shape[0] - 1)
-    px = image[iv, iu]
-    return px.reshape(px.shape[0], -1).mean(axis=1)
-
-
 _PIXEL_ANGLE_CACHE: dict = {}
 
 
@@ -512,38 +504,92 @@ def _pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
 
 def _side_score(image, camera, mask, threshold, rays_c, uv, e_c, alpha_c_space, step_px, n_probe):
     """Mirrored-nadir test (002 §3): step ``n_probe`` edge rays towards / away from e by
-    ``step_px`` pixels, look at the image there, and check with `earth_side_check` that the bright
-    pixels are inside the cone (body) and the dark ones outside (space). Returns the agreeing
-    fraction (NaN if no usable pixel)."""
+    ``step_px`` pixels, look at the image there, and check (as `vision.nadir.earth_side_check`)
+    that the bright pixels are inside the cone (body) and the dark ones outside (space). Returns
+    the agreeing fraction (NaN if no usable pixel). The per-probe work is one numba pass
+    (`_side_kernel`: ~25 small numpy calls per candidate otherwise)."""
     sel = _subsample(rays_c.shape[0], n_probe)
     rays_c, uv = rays_c[sel], uv[sel]
     e = e_c / np.linalg.norm(e_c)
-    t = e[None, :] - (rays_c @ e)[:, None] * rays_c          # towards e, tangent at each ray
-    tn = np.linalg.norm(t, axis=1)
-    ok = tn > 1e-9
-    if not np.any(ok):
-        return math.nan
-    rays_c, uv, t, tn = rays_c[ok], uv[ok], t[ok], tn[ok]
-    t = t / tn[:, None]
-    ang = (step_px * _pixel_angle(camera, uv))[:, None]
-    ca, sa = np.cos(ang), np.sin(ang)
-    probe = np.concatenate([ca * rays_c + sa * t, ca * rays_c - sa * t])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        puv = project(camera, probe)
-    use = _in_image(camera, puv)
-    if mask is not None and mask.has_mask and np.any(use):
-        iu = np.clip(np.rint(puv[use, 0]).astype(np.int64), 0, camera.width - 1)
-        iv = np.clip(np.rint(puv[use, 1]).astype(np.int64), 0, camera.height - 1)
-        sub = np.flatnonzero(use)
-        use[sub[mask.mask[iv, iu]]] = False
-    if not np.any(use):
-        return math.nan
-    b = _brightness_at(image, puv[use])
-    bright = b >= threshold
-    pr = probe[use]
-    body = pr[bright] if np.any(bright) else None
-    space = pr[~bright] if np.any(~bright) else None
-    return earth_side_check(e, alpha_c_space, body, space)
+    pa = _pixel_angle(camera, uv)
+    img = image if image.ndim == 3 else image[:, :, None]
+    m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
+    good, total = _side_kernel(img, m, float(threshold), np.ascontiguousarray(rays_c), e, step_px * pa,
+                               float(alpha_c_space), camera.fx, camera.fy, camera.cx, camera.cy,
+                               np.asarray(camera.k), camera.max_theta)
+    return good / total if total else math.nan
+
+
+_NO_MASK = np.zeros((0, 0), dtype=bool)
+
+
+@numba.njit(cache=True)
+def _project1(x, y, z, fx, fy, cx, cy, k, max_theta):
+    """Pixel of one ray: the formulas of `vision.camera._project_kernel` (NaN beyond max_theta)."""
+    rho = math.hypot(x, y)
+    theta = math.atan2(rho, z)
+    if theta > max_theta or (rho == 0.0 and z <= 0.0):
+        return math.nan, math.nan
+    t2 = theta * theta
+    n = k.shape[0]
+    acc = k[n - 1]
+    for i in range(n - 2, -1, -1):
+        acc = acc * t2 + k[i]
+    r_d = acc * theta
+    scale = r_d / rho if rho > 0.0 else 0.0
+    return cx + fx * scale * x, cy + fy * scale * y
+
+
+@numba.njit(cache=True)
+def _probe_brightness(img, mask, u, v):
+    """Mean-channel brightness at the nearest pixel of (u, v) (``np.rint``, clipped), or -1 when (u, v)
+    is outside the image (`_in_image`) or on the payload mask (an empty mask: none)."""
+    h, w = img.shape[0], img.shape[1]
+    if not (math.isfinite(u) and math.isfinite(v) and u >= -0.5 and u <= w - 0.5 and v >= -0.5
+            and v <= h - 0.5):
+        return -1.0
+    iu = min(max(int(np.rint(u)), 0), w - 1)
+    iv = min(max(int(np.rint(v)), 0), h - 1)
+    if mask.shape[0] and mask[iv, iu]:
+        return -1.0
+    nc = img.shape[2]
+    acc = 0.0
+    for c in range(nc):
+        acc += float(img[iv, iu, c])
+    return acc / nc
+
+
+@numba.njit(cache=True)
+def _side_kernel(img, mask, threshold, rays, e, ang, alpha, fx, fy, cx, cy, k, max_theta):
+    """Probes of `_side_score`: each ray turned by ang_j towards e and away from it (tangent
+    ``t = e - (p.e) p`` normalised; rays with |t| <= 1e-9 skipped), projected, looked up
+    (`_probe_brightness`); a bright probe (>= threshold) agrees when its angle from e is below
+    alpha, a dark one when above. Returns (agreeing, usable) probe counts."""
+    good = 0
+    total = 0
+    for sign in (1.0, -1.0):
+        for j in range(rays.shape[0]):
+            px, py, pz = rays[j, 0], rays[j, 1], rays[j, 2]
+            d = px * e[0] + py * e[1] + pz * e[2]
+            tx, ty, tz = e[0] - d * px, e[1] - d * py, e[2] - d * pz
+            tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+            if not tn > 1e-9:
+                continue
+            ca, sa = math.cos(ang[j]), sign * math.sin(ang[j])
+            qx = ca * px + sa * (tx / tn)
+            qy = ca * py + sa * (ty / tn)
+            qz = ca * pz + sa * (tz / tn)
+            u, v = _project1(qx, qy, qz, fx, fy, cx, cy, k, max_theta)
+            b = _probe_brightness(img, mask, u, v)
+            if b < 0.0:
+                continue
+            qn = math.sqrt(qx * qx + qy * qy + qz * qz)
+            c = (qx * e[0] + qy * e[1] + qz * e[2]) / qn
+            a = math.acos(min(max(c, -1.0), 1.0))
+            total += 1
+            if (b >= threshold and a < alpha) or (b < threshold and a > alpha):
+                good += 1
+    return good, total
 
 
 def _triple_radii(H: np.ndarray, n_triples: int = 6) -> np.ndarray:
@@ -593,49 +639,111 @@ def _disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16
     """Sun/Moon disc test: the ring at alpha/2 about the fitted centre must lie in the image
     (at least 3/4 of its points, outside the payload mask) and be bright throughout, and at least
     3/4 of the ring at alpha + step_px pixels must be dark. Rejects short bright arcs (a saturated
-    limb or glint at the image corner) that a small circle fits. Returns "" or the reason."""
+    limb or glint at the image corner) that a small circle fits. Returns "" or the reason. The
+    ring probes are one numba pass (`_disc_kernel`)."""
     T = tangent_basis(e_c)
-    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
-    ring = np.cos(psi)[:, None] * T[:, 0] + np.sin(psi)[:, None] * T[:, 1]
     with np.errstate(invalid="ignore", divide="ignore"):
         uv_c = project(camera, e_c)
     pa = float(_pixel_angle(camera, uv_c[None, :])[0]) if np.all(np.isfinite(uv_c)) else 1.0 / camera.fx
-    out = []
-    angs = (0.5 * alpha, alpha + step_px * pa)
-    rays2 = np.concatenate([math.cos(ang) * e_c + math.sin(ang) * ring for ang in angs])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        uv2 = project(camera, rays2)     # both rings in one call
-    use2 = _in_image(camera, uv2)
-    for q in range(2):
-        uv, use = uv2[q * n:(q + 1) * n], use2[q * n:(q + 1) * n]
-        if mask is not None and mask.has_mask and np.any(use):
-            sub = np.flatnonzero(use)
-            iu = np.clip(np.rint(uv[sub, 0]).astype(np.int64), 0, camera.width - 1)
-            iv = np.clip(np.rint(uv[sub, 1]).astype(np.int64), 0, camera.height - 1)
-            use[sub[mask.mask[iv, iu]]] = False
-        out.append((use, _brightness_at(image, uv[use]) if np.any(use) else np.zeros(0)))
-    (u_in, b_in), (u_out, b_out) = out
-    if u_in.sum() < 0.75 * n:
-        return f"disc centre too close to the image edge or mask ({int(u_in.sum())}/{n} inner probes visible)"
-    if np.any(b_in < threshold):
-        return f"disc not bright inside ({int(np.sum(b_in < threshold))}/{b_in.size} inner probes below threshold)"
-    if b_out.size and np.mean(b_out < threshold) < 0.75:
-        return f"bright around the disc ({int(np.sum(b_out >= threshold))}/{b_out.size} outer probes above threshold)"
+    img = image if image.ndim == 3 else image[:, :, None]
+    m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
+    n_in, dark_in, n_out, dark_out = _disc_kernel(
+        img, m, float(threshold), np.asarray(e_c, dtype=float), T, _ring_angles(n),
+        0.5 * alpha, alpha + step_px * pa, camera.fx, camera.fy, camera.cx, camera.cy, np.asarray(camera.k),
+        camera.max_theta)
+    if n_in < 0.75 * n:
+        return f"disc centre too close to the image edge or mask ({n_in}/{n} inner probes visible)"
+    if dark_in:
+        return f"disc not bright inside ({dark_in}/{n_in} inner probes below threshold)"
+    if n_out and dark_out / n_out < 0.75:
+        return f"bright around the disc ({n_out - dark_out}/{n_out} outer probes above threshold)"
     return ""
+
+
+@functools.lru_cache(maxsize=8)
+def _ring_angles(n: int) -> np.ndarray:
+    """(n, 2) cos, sin of ``np.linspace(0, 2 pi, n, endpoint=False)`` (read-only)."""
+    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    cs = np.ascontiguousarray(np.stack([np.cos(psi), np.sin(psi)], axis=1))
+    cs.flags.writeable = False
+    return cs
+
+
+@numba.njit(cache=True)
+def _disc_kernel(img, mask, threshold, e, T, cs, ang_in, ang_out, fx, fy, cx, cy, k, max_theta):
+    """Rings of `_disc_check`: ``cos(ang) e + sin(ang) (cos psi t1 + sin psi t2)`` for the inner and
+    the outer angle, projected and looked up (`_probe_brightness`). Returns (inner probes usable,
+    of them below threshold, outer probes usable, of them below threshold)."""
+    out = np.zeros(4, np.int64)
+    for q in range(2):
+        ang = ang_in if q == 0 else ang_out
+        ca, sa = math.cos(ang), math.sin(ang)
+        for j in range(cs.shape[0]):
+            c, s = cs[j, 0], cs[j, 1]
+            rx = c * T[0, 0] + s * T[0, 1]
+            ry = c * T[1, 0] + s * T[1, 1]
+            rz = c * T[2, 0] + s * T[2, 1]
+            u, v = _project1(ca * e[0] + sa * rx, ca * e[1] + sa * ry, ca * e[2] + sa * rz,
+                             fx, fy, cx, cy, k, max_theta)
+            b = _probe_brightness(img, mask, u, v)
+            if b < 0.0:
+                continue
+            out[2 * q] += 1
+            if b < threshold:
+                out[2 * q + 1] += 1
+    return out[0], out[1], out[2], out[3]
 
 
 def _refine_local(H: np.ndarray, e0: np.ndarray, c: float, iters: int = 8) -> np.ndarray:
     """Local minimum of |H e - c 1|^2 on |e| = 1 near e0 (Gauss-Newton in the tangent plane), for
-    the mirrored-nadir alternative (the global minimum is `constrained_cone_fit`)."""
-    e = e0 / np.linalg.norm(e0)
+    the mirrored-nadir alternative and the limb refits (the global minimum is
+    `constrained_cone_fit`). One numba call (`_refine_kernel`): the numpy loop made ~10 small
+    calls per iteration, up to 8 iterations, 2-4 times per frame."""
+    e0 = np.asarray(e0, dtype=float)
+    return _refine_kernel(np.ascontiguousarray(H, dtype=float), e0 / np.linalg.norm(e0), float(c), iters)
+
+
+@numba.njit(cache=True)
+def _tangent_basis(e):
+    """`nav.rotation.tangent_basis` (same scalar arithmetic) of a unit vector."""
+    e0, e1, e2 = e[0], e[1], e[2]
+    n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / n, e1 / n, e2 / n
+    if abs(e0) < 0.9:
+        t0, t1, t2 = 0.0, e2, -e1
+    else:
+        t0, t1, t2 = -e2, 0.0, e0
+    tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    a0, a1, a2 = t0 / tn, t1 / tn, t2 / tn
+    T = np.empty((3, 2))
+    T[0, 0], T[1, 0], T[2, 0] = a0, a1, a2
+    T[0, 1], T[1, 1], T[2, 1] = e1 * a2 - e2 * a1, e2 * a0 - e0 * a2, e0 * a1 - e1 * a0
+    return T
+
+
+@numba.njit(cache=True)
+def _refine_kernel(H, e, c, iters):
+    """Gauss-Newton of `_refine_local`: step ``dx = -lstsq(H T, H e - c)`` (LAPACK gelsd, rcond as
+    numpy's default eps * max(m, 2)), ``e <- (e + T dx) / |.|``, stop when |dx| < 1e-13."""
+    m = H.shape[0]
+    A = np.empty((m, 2))
+    r = np.empty(m)
+    rcond = np.finfo(np.float64).eps * max(m, 2)
+    e = e.copy()
     for _ in range(iters):
-        T = tangent_basis(e)
-        A = H @ T
-        r = H @ e - c
-        dx = -np.linalg.lstsq(A, r, rcond=None)[0]
-        e = e + T @ dx
-        e /= np.linalg.norm(e)
-        if np.linalg.norm(dx) < 1e-13:
+        T = _tangent_basis(e)
+        for j in range(m):
+            A[j, 0] = H[j, 0] * T[0, 0] + H[j, 1] * T[1, 0] + H[j, 2] * T[2, 0]
+            A[j, 1] = H[j, 0] * T[0, 1] + H[j, 1] * T[1, 1] + H[j, 2] * T[2, 1]
+            r[j] = H[j, 0] * e[0] + H[j, 1] * e[1] + H[j, 2] * e[2] - c
+        dx = np.linalg.lstsq(A, r, rcond)[0]
+        d0, d1 = -dx[0], -dx[1]
+        e0 = e[0] + T[0, 0] * d0 + T[0, 1] * d1
+        e1 = e[1] + T[1, 0] * d0 + T[1, 1] * d1
+        e2 = e[2] + T[2, 0] * d0 + T[2, 1] * d1
+        en = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        e[0], e[1], e[2] = e0 / en, e1 / en, e2 / en
+        if math.sqrt(d0 * d0 + d1 * d1) < 1e-13:
             break
     return e
 
@@ -878,9 +986,17 @@ def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c
 
 
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,
-                    baseline: bool, predicted: np.ndarray | None = None, limb=None) -> TargetResult:
+                    baseline: bool, predicted: np.ndarray | None = None, limb=None,
+                    hists: dict | None = None) -> TargetResult:
     t0 = time.perf_counter()
-    det = detect(image, tc.detection, mask, expected_shape=(camera.height, camera.width))
+    hist = None
+    if hists is not None:
+        # one brightness histogram per frame and sample step, shared by the targets' detections
+        step = tc.detection.binarize.sample_step
+        hist = hists.get(step)
+        if hist is None:
+            hist = hists[step] = brightness_histogram(as_frame(image, (camera.height, camera.width)), step)
+    det = detect(image, tc.detection, mask, expected_shape=(camera.height, camera.width), hist=hist)
     t1 = time.perf_counter()
     timings[f"{name}.detect"] = t1 - t0
     out = TargetResult(name, det)
@@ -1042,6 +1158,7 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
                 r = _earth.R_MEAN
             model = sphere_model(height_m, r, d)
         model_kind = model.kind
+    hists: dict = {}
     limb = None
     if (config.earth.enabled and config.earth.limb_fraction > 0 and prior is not None and prior.x_e is not None
             and prior.R_ec is not None and prior.sun_c is not None and image.ndim == 3):
@@ -1064,7 +1181,7 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
                     raise ValueError(f"prior.{name}_c = {pred!r}; expected a finite 3-vector")
                 pred = pred / np.linalg.norm(pred)
         tr = _process_target(name, image, camera, mask, tc, model, rng, timings, baseline and name == "earth", pred,
-                             limb if name == "earth" else None)
+                             limb if name == "earth" else None, hists)
         targets[name] = tr
         if tr.record is not None:
             r = tr.record
@@ -1074,5 +1191,6 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
             records.append(r)
         else:
             reasons[name] = tr.reason
-    timings["total"] = sum(v for k, v in timings.items() if not k.endswith("baseline_conic_fit"))
+    # earth.limb is part of earth.covariance (both timed from the end of the refit)
+    timings["total"] = sum(v for k, v in timings.items() if not k.endswith(("baseline_conic_fit", "earth.limb")))
     return FrameResult(records, reasons, targets, timings, model_kind)

@@ -191,7 +191,38 @@ def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: st
     e = n / np.linalg.norm(n)
     delta, kind = conic_type(e, alpha)
     return ConeFit(e_c=e, alpha=float(alpha), n=n, rhs=float(rhs), discriminant=delta, conic=kind,
-                   residual=angle_residual(H, e, alpha), m=H.shape[0], method=method)
+                   residual=_mean_sq_residual(H, e, float(alpha)), m=H.shape[0], method=method)
+
+
+@numba.njit(cache=True)
+def _mean_sq_residual(H, e, alpha):
+    """`angle_residual` of unit rows H in one pass (a fit's residual: the numpy version is ~6
+    small calls, and every fit computes it)."""
+    m = H.shape[0]
+    acc = 0.0
+    for j in range(m):
+        c = H[j, 0] * e[0] + H[j, 1] * e[1] + H[j, 2] * e[2]
+        r = math.acos(min(max(c, -1.0), 1.0)) - alpha
+        acc += r * r
+    return acc / m
+
+
+@numba.njit(cache=True)
+def _normal_eigen(H, c):
+    """Eigen-decomposition (w ascending, Q) of N = H^T H and b = Q^T (c H^T 1) of
+    `constrained_cone_fit` (the sums in one pass over the rays, LAPACK syevd for the 3x3)."""
+    N = np.zeros((3, 3))
+    g = np.zeros(3)
+    for j in range(H.shape[0]):
+        for a in range(3):
+            g[a] += H[j, a]
+            for b in range(3):
+                N[a, b] += H[j, a] * H[j, b]
+    w, Q = np.linalg.eigh(N)
+    b = np.zeros(3)
+    for a in range(3):
+        b[a] = c * (Q[0, a] * g[0] + Q[1, a] * g[1] + Q[2, a] * g[2])
+    return w, Q, b
 
 
 @numba.njit(cache=True)
@@ -231,24 +262,37 @@ def constrained_cone_fit(H: np.ndarray, c: float) -> np.ndarray:
     in the bracket [lam_min - |b|, lam_min). The "hard case" (b orthogonal to the smallest
     eigenvector) adds the eigenvector to reach unit length.
     """
-    N = H.T @ H
-    w, Q = np.linalg.eigh(N)
-    b = Q.T @ (c * H.sum(axis=0))
-    lam_min = w[0]
-    bn = float(np.linalg.norm(b))
-    lo, hi = lam_min - bn, lam_min
-    scale = max(abs(w[-1]), 1.0)
+    return _constrained_kernel(np.ascontiguousarray(H, dtype=float), float(c))
 
+
+@numba.njit(cache=True)
+def _constrained_kernel(H, c):
+    """`constrained_cone_fit` in one numba call (its docstring; the numpy version made ~15 small
+    calls per fit, and RANSAC and the scoring fit 2-4 times per candidate)."""
+    w, Q, b = _normal_eigen(H, c)
+    lam_min = w[0]
+    bn = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    lo, hi = lam_min - bn, lam_min
+    scale = max(abs(w[2]), 1.0)
+    e = np.empty(3)
     if abs(b[0]) <= 1e-14 * max(bn, 1e-300):
         # hard case: check whether lam = lam_min already gives |e| <= 1
-        q = np.where(np.arange(3) == 0, 0.0, b / np.where(w - lam_min == 0, 1.0, w - lam_min))
-        sq = float(q @ q)
+        q = np.zeros(3)
+        for i in range(1, 3):
+            d = w[i] - lam_min
+            q[i] = b[i] / (1.0 if d == 0 else d)
+        sq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2]
         if sq <= 1.0:
             q[0] = math.sqrt(1.0 - sq)
-            return Q @ q
-    lam = _secular_root(np.ascontiguousarray(w), np.ascontiguousarray(b), float(lo), float(hi), float(scale))
-    e = Q @ (b / (w - lam))
-    return e / np.linalg.norm(e)
+            for i in range(3):
+                e[i] = Q[i, 0] * q[0] + Q[i, 1] * q[1] + Q[i, 2] * q[2]
+            return e
+    lam = _secular_root(w, b, lo, hi, scale)
+    q0, q1, q2 = b[0] / (w[0] - lam), b[1] / (w[1] - lam), b[2] / (w[2] - lam)
+    for i in range(3):
+        e[i] = Q[i, 0] * q0 + Q[i, 1] * q1 + Q[i, 2] * q2
+    en = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    return e / en
 
 
 def nadir_from_horizon(rays_c: np.ndarray, alpha: float, method: str = "constrained") -> ConeFit:
@@ -295,7 +339,7 @@ def direction_and_radius(rays_c: np.ndarray) -> ConeFit:
     cone with alpha < 90 deg; it signals a non-conical ray set).
     """
     H = _check_rays(rays_c)
-    n, _, rank, _ = np.linalg.lstsq(H, np.ones(H.shape[0]), rcond=None)
+    n, rank = _lstsq_ones(H)
     if rank < 3:
         raise ValueError("direction_and_radius: degenerate ray set (rank < 3: rays on a great "
                          "circle or fewer than 3 distinct rays)")
@@ -304,6 +348,15 @@ def direction_and_radius(rays_c: np.ndarray) -> ConeFit:
         raise ValueError(f"direction_and_radius: |n| = {nn:.6g} < 1: the rays do not lie on a cone "
                          f"with half-angle below 90 deg")
     return _make_fit(H, n, 1.0, math.acos(1.0 / nn), "free-alpha")
+
+
+@numba.njit(cache=True)
+def _lstsq_ones(H):
+    """``np.linalg.lstsq(H, 1, rcond=None)`` (LAPACK gelsd, numpy's default rcond eps * max(m, 3))
+    in one numba call: solution and rank."""
+    m = H.shape[0]
+    x, _, rank, _ = np.linalg.lstsq(H, np.ones(m), np.finfo(np.float64).eps * max(m, 3))
+    return x, rank
 
 
 def mirrored_direction(e_c: np.ndarray, rays_c: np.ndarray) -> np.ndarray:
