@@ -348,3 +348,26 @@ def test_refine_local_reaches_the_constrained_minimum_and_the_mirrored_stationar
     grad = Tm.T @ H.T @ (H @ e_mir - c)
     assert np.max(np.abs(grad)) < 1e-9 * H.shape[0]
     assert abs(np.linalg.norm(e_mir) - 1.0) < 1e-15
+
+
+def test_tilt_corrected_attitude_keeps_only_the_error_about_the_nadir():
+    """The prior attitude turned so that the measured nadir maps exactly onto -x_e/|x_e|; what is
+    left of a prior error is a rotation about the nadir (its tilt part is removed), and a prior
+    without error is returned unchanged (to round-off)."""
+    from nav.rotation import rotvec_to_matrix
+    from vision.frontend import tilt_corrected_attitude
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        R = rotvec_to_matrix(rng.normal(size=3))
+        x = rng.normal(size=3) * 6.6e6
+        n = -x / np.linalg.norm(x)
+        e_c = R.T @ n
+        Rp = rotvec_to_matrix(np.radians(rng.normal(scale=2.0, size=3))) @ R
+        Rc = tilt_corrected_attitude(Rp, e_c, x)
+        np.testing.assert_allclose(Rc @ e_c, n, atol=1e-14)
+        np.testing.assert_allclose(Rc.T @ Rc, np.eye(3), atol=1e-14)
+        D = Rc @ R.T                                   # remaining error rotation, in e
+        w = np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]]) / 2
+        if np.linalg.norm(w) > 1e-12:
+            assert abs(abs(w @ n) / np.linalg.norm(w) - 1.0) < 1e-9   # axis along the nadir
+        np.testing.assert_allclose(tilt_corrected_attitude(R, e_c, x), R, atol=1e-14)

@@ -887,6 +887,31 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     return res
 
 
+def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) -> np.ndarray:
+    """The prior attitude camera -> e turned by the smallest rotation that maps the measured nadir
+    ``e_c`` (camera frame) onto the geocentric nadir -x_e/|x_e| (003 eq. (39)).
+
+    The limb's Sun-elevation test and height model (`vision.limb`) need the tangent points in e;
+    with a free-inertial attitude prior a few degrees off, the Sun elevation there is off by as
+    much, which the steep twilight part of the height model turns into kilometres (a 2 deg
+    elevation error near the terminator: ~3 km, ~0.1 deg of nadir). The frame's own horizon fixes
+    the two tilt angles of that error to the accuracy of the first fit (~0.1-0.5 deg); the rotation
+    about the nadir is left as the prior has it (it moves the tangent points along the limb, which
+    changes their Sun elevation by about sin(angle nadir to limb) times the error).
+    """
+    a = np.asarray(R_ec, dtype=float) @ np.asarray(e_c, dtype=float)
+    a /= np.linalg.norm(a)
+    b = -np.asarray(x_e, dtype=float) / np.linalg.norm(x_e)
+    axis = np.cross(a, b)
+    s, c = float(np.linalg.norm(axis)), float(a @ b)
+    if s < 1e-15:
+        return np.asarray(R_ec, dtype=float)
+    k = axis / s
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    R = np.eye(3) + s * K + (1.0 - c) * (K @ K)        # Rodrigues: rotates a onto b
+    return R @ np.asarray(R_ec, dtype=float)
+
+
 def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit, J=None):
     """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels and the refit
     with its height; None when too few limb points are usable (the caller keeps the threshold
@@ -903,7 +928,7 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True)
     el = None
     if np.any(ok):
-        el = sun_elevation(rn[ok] @ R_ec.T, x_e, sun_e)
+        el = sun_elevation(rn[ok] @ tilt_corrected_attitude(R_ec, e_c, x_e).T, x_e, sun_e)
         keep = el >= math.radians(tc.limb_min_sun_elev_deg)
         ok[ok] = keep
         el = el[keep]
