@@ -44,7 +44,10 @@ rows (:func:`gps_rows_kernel`); the gating of every candidate (its diagonal bloc
 ``S = H P H^T + R`` with the prior P) and the Schmidt update of the accepted ones together
 (:func:`nav.schmidt.update_kernel`, sparse in H); the feedback of x, v, q. GPS position and
 velocity of one fix were already applied as one stacked 6-row update (same prior, block-diagonal
-R: identical to sequential updates in exact arithmetic). Covariance checks of GPS fixes and camera
+R: identical to sequential updates in exact arithmetic); an epoch with a lone GPS fix (90 % of
+them at 10 Hz GPS) is one kernel call (:func:`_gps_epoch_kernel`: extrapolation, rows, gated update,
+feedback), the others share :func:`_extrapolate` and :func:`_feedback_kernel` with it (bit-identical
+to the per-step numpy version on the atek workload). Covariance checks of GPS fixes and camera
 vectors are vectorised over the whole run, and the outputs and the smoother store are
 preallocated arrays. On the atek 20 Hz replay workload the results agree with the previous
 implementation to round-off (attitude 7e-15 rad, covariance diagonal 1.4e-14 relative).
@@ -368,7 +371,12 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
                 pos[m] = fn(vt[m])
                 body_pos[name] = pos
 
-    cal = ImuCalibration()
+    # calibration fields and camera mountings: rows of one array each (views), corrected in place
+    # by the feedback kernel
+    cal_arr = np.zeros((len(_CAL_FIELDS), 3))
+    cal = ImuCalibration(**{nm: cal_arr[i] for i, nm in enumerate(_CAL_FIELDS)})
+    R_bc_arr = np.array(R_bc_est, float).reshape(n_cam, 3, 3)
+    R_bc_est = list(R_bc_arr)
     X = np.empty((N, 3)); V = np.empty((N, 3)); Q = np.empty((N, 4))
     x = np.asarray(init.x_e, float).copy(); v = np.asarray(init.v_e, float).copy()
     q = matrix_to_quat(quat_to_matrix(init.q_eb)).copy()
@@ -383,7 +391,7 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
     gate2 = chi2_gate(2, tuning.gate_probability)
     gate3 = chi2_gate(3, tuning.gate_probability)
     offs_gps, gates_gps = np.array([0, 3, 6], dtype=np.int64), np.array([gate3, gate3])
-    fb_plan = _feedback_plan(layout)
+    fb_idx = _feedback_arrays(_feedback_plan(layout), [g.name for g in zeta_groups])
     affine_estimated = any(g.estimated and g.name in ("accel_scale", "accel_misalignment", "gyro_scale",
                                                      "gyro_misalignment") for g in layout.groups)
     gps_H = (layout["dx"].start, layout["dv"].start, layout["psi"].start)
@@ -421,6 +429,22 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
     if imu.sample not in ("point", "average"):
         raise ValueError(f"imu.sample: expected 'point' or 'average', got {imu.sample!r}")
     avg = imu.sample == "average"
+    # per-event lookups as Python scalars / preconverted arrays (the loop runs once per event)
+    n_events = len(events)
+    ev_idx_l = ev_idx.tolist()
+    t_l = t_ns.tolist()
+    vec_cam_l = np.asarray(vectors.camera).astype(np.int64).tolist() if vectors is not None else []
+    gps_has_v = gps is not None and gps.v_e is not None
+    gps_m = 6 if gps_has_v else 3
+    gps_H = np.asarray(gps_H, np.int64)
+    if gps is not None:
+        gps_x = np.ascontiguousarray(gps.x_e, float)
+        gps_Px = np.asarray(gps.P_x, float)
+        gps_v = np.ascontiguousarray(gps.v_e, float) if gps_has_v else gps_x
+        gps_Pv = np.asarray(gps.P_v, float) if gps_has_v else None
+        gps_bad_l = [list(b) for b in gps_bad]
+    gps_fast = gps_R6 is not None
+    nis2, code2, upd_dx = np.empty(2), np.empty(2, dtype=np.int64), np.empty(n)
     k = 0
     e_ptr = 0
     X[0] = x; V[0] = v; Q[0] = q
@@ -430,82 +454,116 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         updated = False
         group_vecs = {}
         cands = []
-        while e_ptr < len(events) and ev_idx[e_ptr] == k:
-            t_m, kind, j = events[e_ptr]
-            dt_m = (t_m - t_ns[k]) / NS
-            if kind == 1 and clk_names and 0 <= int(vectors.camera[j]) < n_cam:
-                dt_m -= clk_hat[int(vectors.camera[j])]
+        ej = events[e_ptr][2] if e_ptr < n_events else -1
+        if (gps_fast and e_ptr < n_events and ev_idx_l[e_ptr] == k and events[e_ptr][1] == 0
+                and (e_ptr + 1 == n_events or ev_idx_l[e_ptr + 1] != k)
+                and gps_bad_l[0][ej] is None and gps_bad_l[1][ej] is None):
+            # the common epoch, a lone GPS fix (position and velocity, usable covariances): the
+            # extrapolation, rows, gated update and feedback in one kernel call; the same
+            # operations as the general path below (stacked update, identical results)
+            t_m = events[e_ptr][0]
             e_ptr += 1
-            R_eb = ins.quat_to_R(q)
-            kk = min(k + 1, N - 1) if avg else k  # the sample covering (t_k, t_m]
-            w_eb = w_b[kk] - R_eb[2] * OMEGA_E
-            if dt_m:
-                g = ins._gravity(x[0], x[1], x[2])
-                acc = R_eb @ f_b[kk] + np.array(g) + 2 * OMEGA_E * np.array([v[1], -v[0], 0.0])
-                x_m = x + v * dt_m + 0.5 * acc * dt_m ** 2
-                v_m = v + acc * dt_m
-                R_m = R_eb @ ins.rotvec_to_R(w_eb * dt_m)
-            else:
-                x_m, v_m, R_m = x, v, R_eb
-            if kind == 0:
-                new_c, H6, s6 = _gps_rows(gps, j, x_m, v_m, R_m, w_eb, lever, n, gps_H, gps_bad)
-                gps_stack = (H6, s6, j)
-            else:
-                new_c, P = _vector_rows(vectors, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest,
-                                        last_seen, zeta_hat, tuning, t_m, group_vecs, v_m, w_eb, vec_bad)
-            cands.extend((t_m,) + c for c in new_c)
-        if cands:
-            good = [c for c in cands if c[6] is None]
-            if len(good) == 2 and len(cands) == 2 and cands[0][1] == "gps_pos" and cands[1][1] == "gps_vel":
-                # the common epoch: one GPS fix, position and velocity (stacked when built)
-                H_all, s_all, R_all = gps_stack[0], gps_stack[1], gps_R6[gps_stack[2]]
-                offs, gates = offs_gps, gates_gps
-                m = 6
-            elif good:
-                sizes = [c[5].size for c in good]
-                offs = np.zeros(len(good) + 1, dtype=np.int64)
-                np.cumsum(sizes, out=offs[1:])
-                m = int(offs[-1])
-                H_all = np.vstack([c[3] for c in good]) if len(good) > 1 else good[0][3]
-                s_all = np.concatenate([c[5] for c in good]) if len(good) > 1 else good[0][5]
-                R_all = np.zeros((m, m))
-                for i, c in enumerate(good):
-                    R_all[offs[i]:offs[i + 1], offs[i]:offs[i + 1]] = c[4]
-                gates = np.array([gate3 if d == 3 else gate2 for d in sizes])
-            if good:
-                S_all = np.empty((m, m)); nis_all = np.empty(len(good))
-                code = np.empty(len(good), dtype=np.int64); upd_dx = np.empty(n)
-                status = update_kernel(P, np.ascontiguousarray(H_all), R_all, np.ascontiguousarray(s_all, float),
-                                       est_mask, offs, gates, S_all, nis_all, code, upd_dx)
-            gi = 0
-            for t_m, kind, cam, H, R, s_, bad in cands:
-                nis = np.nan
-                S = None
-                if bad is None:
-                    o0, o1 = offs[gi], offs[gi + 1]
-                    if code[gi] != NONFINITE:
-                        S = S_all[o0:o1, o0:o1].copy()
-                    nis = float(nis_all[gi])
-                    if code[gi] != OK:
-                        bad = REASONS[int(code[gi])]
-                    gi += 1
-                if S is None:
-                    S = np.full(R.shape, np.nan)
-                innovations.append(Innovation(t_m, kind, cam, s_, S, nis, bad is None, bad))
+            kk = min(k + 1, N - 1) if avg else k
+            s6 = np.empty(6)
+            S6 = np.empty((6, 6))
+            status, changed = _gps_epoch_kernel(
+                x, v, q, f_b[kk], w_b[kk], (t_m - t_l[k]) / NS, OMEGA_E, lever, gps_x[ej], gps_v[ej], gps_H,
+                P, gps_R6[ej], est_mask, offs_gps, gates_gps, s6, S6, nis2, code2, upd_dx,
+                cal_arr, R_bc_arr, zeta_arr, clk_hat, *fb_idx)
+            for b, (kind, o0) in enumerate((("gps_pos", 0), ("gps_vel", 3))):
+                c_b = int(code2[b])
+                nis = float(nis2[b])
+                S = S6[o0:o0 + 3, o0:o0 + 3].copy() if c_b != NONFINITE else np.full((3, 3), np.nan)
+                bad = None if c_b == OK else REASONS[c_b]
+                innovations.append(Innovation(t_m, kind, -1, s6[o0:o0 + 3], S, nis, bad is None, bad))
                 if bad is not None:
                     rejected[f"{kind}_{bad}"] += 1
                     log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
-            if good and status == OK:
+            if status == OK:
                 updated = True
-                x, v, q, changed = _feedback(upd_dx, fb_plan, x, v, q, cal, R_bc_est, zeta_hat, clk_hat)
                 if changed:
                     if affine_estimated:
                         A_f, b_f, A_w, b_w = cal.matrices()
                     else:  # only biases estimated: A stays the identity
                         b_f, b_w = cal.b_f.copy(), cal.b_w.copy()
-            elif good and status != GATED:
+            elif status != GATED:
                 rejected[f"batch_{REASONS[int(status)]}"] += 1
-                log.warning("update at %d ns rejected: %s", t_ns[k], REASONS[int(status)])
+                log.warning("update at %d ns rejected: %s", t_l[k], REASONS[int(status)])
+        else:
+            while e_ptr < n_events and ev_idx_l[e_ptr] == k:
+                t_m, kind, j = events[e_ptr]
+                dt_m = (t_m - t_l[k]) / NS
+                if kind == 1 and clk_names and 0 <= vec_cam_l[j] < n_cam:
+                    dt_m -= clk_hat[vec_cam_l[j]]
+                e_ptr += 1
+                kk = min(k + 1, N - 1) if avg else k  # the sample covering (t_k, t_m]
+                x_m, v_m, R_m, w_eb = _extrapolate(x, v, q, f_b[kk], w_b[kk], dt_m, OMEGA_E)
+                if kind == 0:
+                    H6 = np.zeros((gps_m, n))
+                    s6 = np.empty(gps_m)
+                    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, gps_x[j], gps_v[j], gps_has_v, gps_H, H6, s6)
+                    new_c = [("gps_pos", -1, H6[:3], gps_Px[j], s6[:3], gps_bad_l[0][j])]
+                    if gps_has_v:
+                        new_c.append(("gps_vel", -1, H6[3:], gps_Pv[j], s6[3:], gps_bad_l[1][j]))
+                    gps_stack = (H6, s6, j)
+                else:
+                    new_c, P = _vector_rows(vectors, j, x_m, R_m, R_bc_est, layout, P, body_pos, P_c_latest,
+                                            last_seen, zeta_hat, tuning, t_m, group_vecs, v_m, w_eb, vec_bad)
+                cands.extend((t_m,) + c for c in new_c)
+            if cands:
+                good = [c for c in cands if c[6] is None]
+                if len(good) == 2 and len(cands) == 2 and cands[0][1] == "gps_pos" and cands[1][1] == "gps_vel":
+                    # the common epoch: one GPS fix, position and velocity (stacked when built)
+                    H_all, s_all, R_all = gps_stack[0], gps_stack[1], gps_R6[gps_stack[2]]
+                    offs, gates = offs_gps, gates_gps
+                    m = 6
+                elif good:
+                    sizes = [c[5].size for c in good]
+                    offs = np.zeros(len(good) + 1, dtype=np.int64)
+                    np.cumsum(sizes, out=offs[1:])
+                    m = int(offs[-1])
+                    H_all = np.vstack([c[3] for c in good]) if len(good) > 1 else good[0][3]
+                    s_all = np.concatenate([c[5] for c in good]) if len(good) > 1 else good[0][5]
+                    R_all = np.zeros((m, m))
+                    for i, c in enumerate(good):
+                        R_all[offs[i]:offs[i + 1], offs[i]:offs[i + 1]] = c[4]
+                    gates = np.array([gate3 if d == 3 else gate2 for d in sizes])
+                if good:
+                    S_all = np.empty((m, m)); nis_all = np.empty(len(good))
+                    code = np.empty(len(good), dtype=np.int64); upd_dx = np.empty(n)
+                    status = update_kernel(P, np.ascontiguousarray(H_all), R_all, np.ascontiguousarray(s_all, float),
+                                           est_mask, offs, gates, S_all, nis_all, code, upd_dx)
+                gi = 0
+                if good:
+                    offs_l, code_l, nis_l = offs.tolist(), code.tolist(), nis_all.tolist()
+                for t_m, kind, cam, H, R, s_, bad in cands:
+                    nis = np.nan
+                    S = None
+                    if bad is None:
+                        o0, o1 = offs_l[gi], offs_l[gi + 1]
+                        if code_l[gi] != NONFINITE:
+                            S = S_all[o0:o1, o0:o1].copy()
+                        nis = nis_l[gi]
+                        if code_l[gi] != OK:
+                            bad = REASONS[code_l[gi]]
+                        gi += 1
+                    if S is None:
+                        S = np.full(R.shape, np.nan)
+                    innovations.append(Innovation(t_m, kind, cam, s_, S, nis, bad is None, bad))
+                    if bad is not None:
+                        rejected[f"{kind}_{bad}"] += 1
+                        log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
+                if good and status == OK:
+                    updated = True
+                    changed = _feedback_kernel(upd_dx, x, v, q, cal_arr, R_bc_arr, zeta_arr, clk_hat, *fb_idx)
+                    if changed:
+                        if affine_estimated:
+                            A_f, b_f, A_w, b_w = cal.matrices()
+                        else:  # only biases estimated: A stays the identity
+                            b_f, b_w = cal.b_f.copy(), cal.b_w.copy()
+                elif good and status != GATED:
+                    rejected[f"batch_{REASONS[int(status)]}"] += 1
+                    log.warning("update at %d ns rejected: %s", t_ns[k], REASONS[int(status)])
         for tm, vecs in group_vecs.items():
             if "hor" in vecs and "sun" in vecs:
                 tri_t.append(tm)
@@ -513,11 +571,10 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         if updated:
             X[k] = x; V[k] = v; Q[k] = q
             P_diag[kc - 1] = P.diagonal()
-            meas_t[mc] = t_ns[k]
+            meas_t[mc] = t_l[k]
             P_full[mc] = P
             if n_cam:
-                for c in range(n_cam):
-                    R_bc_hist[mc, c] = R_bc_est[c]
+                R_bc_hist[mc] = R_bc_arr
                 clk_t[mc] = clk0 + clk_hat
             if store_for_smoother:
                 st_post[kc - 1] = mc
@@ -527,8 +584,8 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
             break
         # next block
         k_end = min(k + max_block, N - 1)
-        if e_ptr < len(events):
-            k_end = min(k_end, max(int(ev_idx[e_ptr]), k + 1))
+        if e_ptr < n_events:
+            k_end = min(k_end, max(ev_idx_l[e_ptr], k + 1))
         if store_for_smoother:
             A_blk, d_blk = st_A[kc], st_d[kc]
         _propagate_block(x, v, q, ts, f_b, w_b, k, k_end, A_f, b_f, A_w, b_w, X, V, Q, stats, avg,
@@ -639,23 +696,82 @@ def _feedback_nav(x, v, q, dx):
         q[i] = qn[i]
 
 
-def _feedback(dx, plan, x, v, q, cal, R_bc_est, zeta_hat, clk_hat):
-    """Closed-loop correction of the nominal state with the estimated errors (``plan`` from
-    :func:`_feedback_plan`); returns whether the IMU calibration changed. x, v, q are updated in
-    place."""
-    _feedback_nav(x, v, q, dx)
-    changed = False
+_CAL_FIELDS = ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w")  #: ImuCalibration fields, rows of the feedback's array
+
+
+def _feedback_arrays(plan, zeta_names):
+    """:func:`_feedback_plan` as the index arrays of :func:`_feedback_kernel`: (k, 2) int64 rows
+    ``(target row, first state index)`` for the IMU-error groups (row in ``_CAL_FIELDS``), camera
+    misalignments (camera), zeta groups (row in ``zeta_names``) and clock offsets (camera)."""
+    rows = {"imu": [], "cam": [], "zeta": [], "clk": []}
     for kind, sl, extra in plan:
-        if kind == "imu":
-            setattr(cal, extra, getattr(cal, extra) + dx[sl])
-            changed = True
-        elif kind == "cam":
-            R_bc_est[extra] = ins.rotvec_to_R(dx[sl].copy()) @ R_bc_est[extra]  # 003 eq. (50)
-        elif kind == "zeta":
-            zeta_hat[extra] += dx[sl]
-        else:
-            clk_hat[extra] += dx[sl][0]  # stamp correction: t = stamp - offset
-    return x, v, q, changed
+        r = (_CAL_FIELDS.index(extra) if kind == "imu" else zeta_names.index(extra) if kind == "zeta" else int(extra))
+        rows[kind].append((r, sl.start))
+    return tuple(np.array(rows[k], dtype=np.int64).reshape(-1, 2) for k in ("imu", "cam", "zeta", "clk"))
+
+
+@nb.njit(cache=True)
+def _feedback_kernel(dx, x, v, q, cal_arr, R_bc_arr, zeta_arr, clk_hat, fb_imu, fb_cam, fb_zeta, fb_clk):
+    """Closed-loop correction of the nominal state with the estimated errors ``dx``, in place:
+    x, v, q (:func:`_feedback_nav`), the IMU calibration (``cal_arr`` rows += dx), the camera
+    mountings ``R_bc <- exp([psi_c x]) R_bc`` (003 eq. (50)), the Gauss-Markov estimates and the
+    camera clock offsets (stamp correction: t = stamp - offset); index arrays from
+    :func:`_feedback_arrays`. Returns whether the IMU calibration changed."""
+    _feedback_nav(x, v, q, dx)
+    for r in range(fb_imu.shape[0]):
+        row, st = fb_imu[r, 0], fb_imu[r, 1]
+        for i in range(3):
+            cal_arr[row, i] += dx[st + i]
+    for r in range(fb_cam.shape[0]):
+        c, st = fb_cam[r, 0], fb_cam[r, 1]
+        Rn = ins.rotvec_to_R(dx[st:st + 3].copy()) @ R_bc_arr[c]
+        for i in range(3):
+            for j in range(3):
+                R_bc_arr[c, i, j] = Rn[i, j]
+    for r in range(fb_zeta.shape[0]):
+        row, st = fb_zeta[r, 0], fb_zeta[r, 1]
+        for i in range(3):
+            zeta_arr[row, i] += dx[st + i]
+    for r in range(fb_clk.shape[0]):
+        clk_hat[fb_clk[r, 0]] += dx[fb_clk[r, 1]]
+    return fb_imu.shape[0] > 0
+
+
+@nb.njit(cache=True)
+def _extrapolate(x, v, q, f, w, dt_m, W):
+    """The state at a measurement ``dt_m`` seconds after the current sample (x, v, q there):
+    position to second order, velocity to first order with gravity and Coriolis, attitude with the
+    current rate (f, w: the IMU sample covering the interval, as measured). Returns
+    ``(x_m, v_m, R_m, w_eb)``, ``w_eb`` the body rate against e (for the GPS lever arm)."""
+    R_eb = ins.quat_to_R(q)
+    w_eb = w - R_eb[2] * W
+    if dt_m == 0.0:
+        return x.copy(), v.copy(), R_eb, w_eb
+    g0, g1, g2 = ins._gravity(x[0], x[1], x[2])
+    g = np.array([g0, g1, g2])
+    cor = np.array([v[1], -v[0], 0.0])
+    acc = R_eb @ f + g + (2 * W) * cor
+    x_m = x + v * dt_m + (0.5 * acc) * dt_m ** 2
+    v_m = v + acc * dt_m
+    R_m = R_eb @ ins.rotvec_to_R(w_eb * dt_m)
+    return x_m, v_m, R_m, w_eb
+
+
+@nb.njit(cache=True)
+def _gps_epoch_kernel(x, v, q, f, w, dt_m, W, lever, xg, vg, cols, P, R6, est, offs, gates, s, S, nis, code, dx,
+                      cal_arr, R_bc_arr, zeta_arr, clk_hat, fb_imu, fb_cam, fb_zeta, fb_clk):
+    """A lone GPS fix at the current sample in one call: :func:`_extrapolate` to its time,
+    :func:`gps_rows_kernel` (position and velocity rows), the gated stacked Schmidt update
+    (:func:`nav.schmidt.update_kernel`, P in place; ``s``, ``S``, ``nis``, ``code``, ``dx`` out)
+    and, if applied, :func:`_feedback_kernel`. Returns ``(status, calibration changed)``."""
+    x_m, v_m, R_m, w_eb = _extrapolate(x, v, q, f, w, dt_m, W)
+    H = np.zeros((6, P.shape[0]))
+    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, True, cols, H, s)
+    status = update_kernel(P, H, R6, s, est, offs, gates, S, nis, code, dx)
+    changed = False
+    if status == OK:
+        changed = _feedback_kernel(dx, x, v, q, cal_arr, R_bc_arr, zeta_arr, clk_hat, fb_imu, fb_cam, fb_zeta, fb_clk)
+    return status, changed
 
 
 @nb.njit(cache=True)
@@ -684,22 +800,6 @@ def gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, cols, H, s):
         H[3, ip + 1] = u[2]; H[3, ip + 2] = -u[1]
         H[4, ip + 0] = -u[2]; H[4, ip + 2] = u[0]
         H[5, ip + 0] = u[1]; H[5, ip + 1] = -u[0]
-
-
-def _gps_rows(gps, j, x_m, v_m, R_m, w_eb, lever, n, cols, bad):
-    """Candidate rows (kind, camera, H, R, s, reason) of a GPS fix (``bad``: the fix's
-    precomputed problems, :func:`_gps_problems`)."""
-    has_v = gps.v_e is not None
-    m = 6 if has_v else 3
-    H = np.zeros((m, n))
-    s = np.empty(m)
-    xg = np.asarray(gps.x_e[j], float)
-    vg = np.asarray(gps.v_e[j], float) if has_v else xg
-    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, np.asarray(cols, np.int64), H, s)
-    out = [("gps_pos", -1, H[:3], np.asarray(gps.P_x[j], float), s[:3], bad[0][j])]
-    if has_v:
-        out.append(("gps_vel", -1, H[3:], np.asarray(gps.P_v[j], float), s[3:], bad[1][j]))
-    return out, H, s
 
 
 def _vector_problems(vec):

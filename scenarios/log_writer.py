@@ -98,6 +98,27 @@ def _scalar(x, n: int, what: str, dtype=np.float64) -> np.ndarray:
     return a
 
 
+def _merge_records(batches: list, src: np.ndarray, off: np.ndarray, ln: np.ndarray) -> np.ndarray:
+    """The records ``batches[src[i]]`` bytes ``off[i]:off[i] + ln[i]`` (each batch an (m, L) uint8
+    matrix of records), i in order, back to back in one uint8 array.
+
+    Consecutive records taken from one batch at consecutive offsets form a run copied as one slice,
+    so the Python work is per run (at most one per record, far fewer when one topic dominates a
+    time span); this replaces a numba gather over a typed list, whose construction alone compiles
+    for ~0.4 s in every new process.
+    """
+    n = len(src)
+    if n == 0:
+        return np.zeros(0, np.uint8)
+    brk = np.flatnonzero((src[1:] != src[:-1]) | (off[1:] != off[:-1] + ln[:-1])) + 1
+    first = np.concatenate([[0], brk])
+    last = np.concatenate([brk, [n]]) - 1
+    views = [memoryview(np.ascontiguousarray(b)).cast("B") for b in batches]
+    data = b"".join([views[s][a:e] for s, a, e in zip(src[first].tolist(), off[first].tolist(),
+                                                        (off[last] + ln[last]).tolist())])
+    return np.frombuffer(data, np.uint8)
+
+
 def _xyz(prefix: str, a: np.ndarray) -> dict:
     return {f"{prefix}.x": a[:, 0], f"{prefix}.y": a[:, 1], f"{prefix}.z": a[:, 2]}
 
@@ -224,15 +245,15 @@ class LogWriter:
             n = len(t)
             self._writer.write_messages(t, np.full(n, c), np.full(n, rows.shape[1]),
                                         np.ascontiguousarray(rows).reshape(-1))
-        else:  # merge: records stay in their batches, gathered chunk by chunk in time order
+        else:  # merge: the batches' records joined in time order, then cut into chunks
             t = np.concatenate([p[0] for p in take])
             ch = np.concatenate([np.full(len(p[0]), p[1]) for p in take])
             ln = np.concatenate([np.full(len(p[0]), p[2].shape[1]) for p in take])
             src = np.concatenate([np.full(len(p[0]), i) for i, p in enumerate(take)])
             off = np.concatenate([np.arange(len(p[0])) * p[2].shape[1] for p in take])
-            bufs = [np.ascontiguousarray(p[2]).reshape(-1) for p in take]
             order = np.argsort(t, kind="stable")
-            self._writer.write_messages(t[order], ch[order], ln[order], bufs, off[order], src[order])
+            self._writer.write_messages(t[order], ch[order], ln[order],
+                                        _merge_records([p[2] for p in take], src[order], off[order], ln[order]))
         self.message_count += sum(len(p[0]) for p in take)
 
     def close(self, complete: bool = True, reason: str = "") -> Path:

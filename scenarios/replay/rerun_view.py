@@ -108,8 +108,10 @@ def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *,
         rec.spawn(default_blueprint=blueprint(cam_numbers, res.x_e))
     _static(rec, rr, inp, res)
     tm["static"] = time.perf_counter() - t
-    for name, fn, args in (("scene", _scene, (rec, rr, inp, res, vectors, cam_numbers, frames)),
-                           ("images", _images, (rec, rr, inp, frames, cam_numbers)),
+    # the images first: Rerun encodes and writes them (most of the recording's bytes) in its own
+    # threads while the scene and the time series are computed here
+    for name, fn, args in (("images", _images, (rec, rr, inp, frames, cam_numbers)),
+                           ("scene", _scene, (rec, rr, inp, res, vectors, cam_numbers, frames)),
                            ("series", _timeseries, (rec, rr, inp, res, smooth, vectors, cam_numbers))):
         t = time.perf_counter()
         fn(*args)
@@ -214,16 +216,15 @@ _OVERLAY = (("edges", [150, 150, 150], 1.0), ("inliers", [0, 255, 0], 1.5), ("ou
 def _images(rec, rr, inp, frames, cam_numbers):
     """Each frame as its JPEG bytes (EncodedImage) with the front end's overlay, one column send per
     entity; a frame without an overlay part shows none (empty row)."""
+    jpeg = _jpegs(inp, frames, cam_numbers)
     for k in cam_numbers:
         fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
         if not fr:
             continue
-        st = inp.cameras[k].images
         t = np.array([f.t_ns for f in fr], np.int64)
-        idx = np.clip(np.searchsorted(st.t_ns, t), 0, len(st) - 1)
         base = f"camera_{k}/image"
         rec.log(base, rr.EncodedImage.from_fields(media_type="image/jpeg"), static=True)
-        blobs = [st[int(i)] for i in idx]
+        blobs = jpeg.pop(k)
         # one column send per <= 1 GiB of JPEG (Arrow list offsets are int32)
         cuts = np.searchsorted(np.cumsum([len(b) for b in blobs]), np.arange(1, 64) * 2 ** 30)
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(blobs)]):
@@ -249,6 +250,27 @@ def _images(rec, rr, inp, frames, cam_numbers):
                     rec.send_columns(p, indexes=_times(rr, inp, t),
                                      columns=rr.Points2D.columns(positions=np.concatenate(parts)).partition(
                                          [len(a) for a in parts]))
+
+
+def _jpegs(inp, frames, cam_numbers) -> dict:
+    """camera -> the JPEG bytes of its frames (time order, the image at or after each frame time).
+
+    The images of all cameras are read in log time order, the order of the log's chunks: the
+    reader keeps one decompressed chunk, so each chunk is decompressed once (camera by camera,
+    every chunk holding frames of several cameras was decompressed once per camera).
+    """
+    want = []  # (t, camera, position in its frame list, image index)
+    for k in cam_numbers:
+        st = inp.cameras[k].images
+        t = np.sort(np.array([f.t_ns for f in frames if f.k == k], np.int64))
+        if not t.size:
+            continue
+        idx = np.clip(np.searchsorted(st.t_ns, t), 0, len(st) - 1)
+        want += [(int(st.t_ns[i]), k, p, int(i)) for p, i in enumerate(idx)]
+    out = {k: [None] * sum(1 for f in frames if f.k == k) for k in cam_numbers}
+    for _, k, p, i in sorted(want):
+        out[k][p] = inp.cameras[k].images[i]
+    return out
 
 
 def _blob_batch(blobs):
@@ -295,12 +317,15 @@ def _timeseries(rec, rr, inp, res, smooth, vectors, cam_numbers):
             groups.setdefault(source_name(inn.kind, inn.camera, cam_numbers), []).append(inn)
     used = {(int(i.t_ns), i.kind, int(i.camera)) for i in res.innovations if i.accepted}
     for src, lst in groups.items():
-        lst = [i for i in lst if np.all(np.isfinite(i.s))]
-        if not lst:
+        s = np.array([i.s for i in lst], float)
+        fin = np.all(np.isfinite(s.reshape(len(lst), -1)), axis=1)
+        if not fin.any():
             continue
+        if not fin.all():
+            lst = [i for i, f in zip(lst, fin) if f]
+            s = s[fin]
         t = np.array([i.t_ns for i in lst], np.int64)
-        s = np.array([i.s for i in lst])
-        S = np.array([np.sqrt(np.clip(np.diag(i.S), 0, None)) for i in lst])
+        S = np.sqrt(np.clip(np.diagonal(np.array([i.S for i in lst], float), axis1=1, axis2=2), 0, None))
         cam = src.startswith("camera_")
         base, f = ("innovation/" + src, math.degrees(1.0)) if cam else ("gps_innovation/" + src.removeprefix("gps/"), 1.0)
         for c in range(s.shape[1]):
