@@ -45,6 +45,7 @@ def run(args) -> int:
     import cv2
 
     from scenarios.camera_file import load_camera
+    from scenarios.jpeg import decode_frame
     from scenarios.vision_config import load_vision_config
     from vision import mask as vmask
     from vision.frontend import FramePrior, process_frame
@@ -81,7 +82,7 @@ def run(args) -> int:
         if not p.is_file():
             raise UserError(f"{path}: image file not found")
         data = np.fromfile(p, dtype=np.uint8)
-        img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+        img = decode_frame(data.tobytes()) if data.size else None
         if img is None:
             raise UserError(f"{path}: not an image OpenCV can decode (expected JPEG, PNG, ...)")
         if img.shape[:2] != (cam.height, cam.width):

@@ -2,7 +2,7 @@
 
 Frames are sent to a :class:`concurrent.futures.ProcessPoolExecutor` in chunks of 16 (the frame's
 index in its image stream and its position prior; forked workers read the JPEG bytes from the log
-themselves, see :func:`run_vision`); each worker decodes (``cv2.imdecode``) and runs
+themselves, see :func:`run_vision`); each worker decodes (:func:`scenarios.jpeg.decode_frame`) and runs
 :func:`vision.frontend.process_frame`, and returns the vector records plus a compact overlay for
 the Rerun view (edge candidates, inliers, fitted conic and vector image points in distorted pixel
 space, 003 figs. 15, 27) and the stage timings. With one worker (or one core) the frames are
@@ -99,14 +99,14 @@ def _overlay(camera, res) -> dict:
 
 def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutput:
     """Decode one frame and run the front end on it (in a worker, or here)."""
-    import cv2
+    from scenarios.jpeg import decode_frame
     from vision.frontend import FramePrior, process_frame
     camera = camera if camera is not None else _STATE["cameras"][job.k]
     config = config if config is not None else _STATE["config"]
     mask = mask if mask is not None else _STATE.get("masks", {}).get(job.k)
     t0 = time.perf_counter()
     jpeg = job.jpeg if job.jpeg is not None else _STATE["images"][job.k][job.index]
-    img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    img = decode_frame(jpeg)
     t_dec = time.perf_counter() - t0
     if img is None:
         return FrameOutput(job.k, job.t_ns, [], {"frame": "JPEG could not be decoded"}, {}, {"decode": t_dec})
