@@ -539,14 +539,15 @@ def _payload_masks(inp, cam_numbers, files: dict) -> dict:
     return out
 
 
-def _run_plan(plan: _ImagePlan, jobs, opt, frames_out=None, progress=None, on_pool_start=None):
+def _run_plan(plan: _ImagePlan, jobs, opt, frames_out=None, progress=None, on_pool_start=None) -> list:
+    """The vision on ``jobs``; returns the vector rows ``(t_ns, camera index, target, e_c, P_c)``
+    of the replayed targets (for :func:`_vd`)."""
     from scenarios.replay.vision_worker import run_vision
     out = run_vision(jobs, plan.cams, plan.config, workers=opt.workers, progress=progress, masks=plan.masks,
                      on_result=frames_out.extend if frames_out is not None else None,
                      images=plan.images, on_pool_start=on_pool_start)
-    rows = [(r.t_ns, plan.cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
+    return [(r.t_ns, plan.cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
             for f in out for r in f.records if r.target in opt.targets]
-    return out, _vd(rows)
 
 
 def _triad_pass(plan: _ImagePlan, inp, cam_numbers, opt, imu) -> VectorData | None:
@@ -565,21 +566,17 @@ def _triad_pass(plan: _ImagePlan, inp, cam_numbers, opt, imu) -> VectorData | No
             seen.add(key)
             pick.append(j)
     not_before = int(imu.t_ns[min(1, imu.t_ns.size - 1)])
-    rows = []
+    rows: list = []
     for i in range(0, len(pick), TRIAD_SEARCH_BATCH):
-        _, vd = _run_plan(plan, pick[i:i + TRIAD_SEARCH_BATCH], opt)
-        if vd is not None:
-            rows.append(vd)
-            allv = _vd([(t, c, g, e, P) for v in rows for t, c, g, e, P in
-                        zip(v.t_ns, v.camera, v.target, v.e_c, v.P_c)])
-            try:
-                first_triad_epoch(allv, not_before)
-                return allv
-            except ValueError:
-                continue
-    if not rows:
-        return None
-    return _vd([(t, c, g, e, P) for v in rows for t, c, g, e, P in zip(v.t_ns, v.camera, v.target, v.e_c, v.P_c)])
+        rows += _run_plan(plan, pick[i:i + TRIAD_SEARCH_BATCH], opt)
+        vd = _vd(rows)
+        try:
+            if vd is not None:
+                first_triad_epoch(vd, not_before)
+                return vd
+        except ValueError:
+            pass            # no epoch with both vectors yet: the next batch
+    return _vd(rows)
 
 
 def _attach_priors(plan: _ImagePlan, imu, init, inp, cam_numbers) -> None:
@@ -604,8 +601,7 @@ def _run_images(plan: _ImagePlan, opt, frames_out, progress=None, on_pool_start=
     """Every planned frame through the vision (with the priors attached to its job)."""
     if not plan.jobs:
         return frames_out, None
-    _, vd = _run_plan(plan, plan.jobs, opt, frames_out, progress, on_pool_start)
-    return frames_out, vd
+    return frames_out, _vd(_run_plan(plan, plan.jobs, opt, frames_out, progress, on_pool_start))
 
 
 def _frames_in(t_ns, a, b, rate_hz=None) -> np.ndarray:
