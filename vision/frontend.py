@@ -817,7 +817,7 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     try:
         f0 = _fit(H, alpha)
         in0 = np.abs(angle_residuals(H, f0.e_c, f0.alpha)) <= thr
-        if in0.mean() >= 1.0 - tc.direct_outlier_fraction:
+        if np.count_nonzero(in0) >= (1.0 - tc.direct_outlier_fraction) * in0.size:
             f1 = _fit(H[in0], alpha)
             rr = _Consensus(f1, np.abs(angle_residuals(H, f1.e_c, f1.alpha)) <= thr)
     except ValueError:
@@ -880,11 +880,31 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
         res.reason = f"residual {res.residual:.3g} rad^2 > max_residual {tc.max_residual:.3g}"
         return res
     # 003 §3.3 sanity check: the implied conic must pass through the image
-    poly = conic_polyline(camera, fit.e_c, fit.alpha, 90, model)
-    if not np.any(_in_image(camera, poly)):
+    if not _conic_passes_image(camera, fit.e_c, fit.alpha, model, H[inl]):
         res.reason = "the fitted conic does not pass through the image (003 §3.3)"
         return res
     return res
+
+
+def _conic_passes_image(camera: FisheyeCamera, e_fit: np.ndarray, alpha: float, model: LimbModel | None,
+                        H_inl: np.ndarray) -> bool:
+    """003 §3.3 sanity check: does the cone (e_fit, alpha) of the fit frame project into the image?
+
+    First the one cone ray nearest the mean inlier ray (the usual case: the inliers lie on the
+    conic, inside the image; one projection), else 90 rays around the whole cone."""
+    e = np.asarray(e_fit, dtype=float)
+    r = H_inl.mean(axis=0) if H_inl.shape[0] else e
+    t = r - (r @ e) * e
+    nt = float(np.linalg.norm(t))
+    if nt > 1e-12:
+        p = math.cos(alpha) * e + (math.sin(alpha) / nt) * t
+        if model is not None and model.kind != "sphere":
+            p = model.M_inv @ p
+            p /= np.linalg.norm(p)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if _in_image(camera, project(camera, p[None, :]))[0]:
+                return True
+    return bool(np.any(_in_image(camera, conic_polyline(camera, e, alpha, 90, model))))
 
 
 def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) -> np.ndarray:
