@@ -117,7 +117,7 @@ def test_cameras_without_camera_info(ilog, tmp_path):
 def test_vision_rate_decimates_frames():
     """--vision-rate: the first frame of every 1/rate bucket from the window start (30 frames/s at
     5 Hz: every 6th frame); without it every frame in the window."""
-    from scenarios.replay.pipeline import _frames_in
+    from scenarios.replay.inputs import frames_in as _frames_in
     t0 = 10 ** 18
     t = t0 + np.round(np.arange(91) * 1e9 / 30).astype(np.int64)
     np.testing.assert_array_equal(_frames_in(t, t0, t0 + 3 * 10 ** 9, 5.0), np.arange(0, 91, 6))
@@ -276,3 +276,21 @@ def test_mask_option_syntax():
     for bad in ("a.png", "x=a.png", "2="):
         with pytest.raises(UserError, match="expected K=FILE"):
             cmd.options_from_args(p.parse_args(["f.mcap", "--mask", bad]))
+
+
+def test_recording_image_rate(ilog, tmp_path):
+    """--rrd-image-rate thins the images and overlays in the recording to the first frame per
+    interval and camera; the vectors given to the filter are those of every frame."""
+    from scenarios.replay import rerun_view
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.vision_worker import FrameOutput
+    t0 = 10 ** 18
+    frames = [FrameOutput(k, t0 + i * 10 ** 9 // 3 + k, [], {}, {}, {}) for i in range(9) for k in (1, 2)]
+    kept = rerun_view._every(frames, [1, 2], 1.0)       # 3 frames/s -> 1 per second and camera
+    assert sorted((f.k, f.t_ns) for f in kept) == sorted((k, t0 + i * 10 ** 9 // 3 + k) for i in (0, 3, 6) for k in (1, 2))
+    rrd = tmp_path / "r.rrd"
+    rr = replay(ilog, _opt(output=str(tmp_path / "r.solution.mcap"), rrd=str(rrd), workers=1, smoother=False,
+                           init="truth", rrd_image_rate_hz=0.5))
+    assert len(rr.frames) == 10 and rrd.stat().st_size > 0
+    with pytest.raises(UserError, match="--rrd-image-rate"):
+        replay(ilog, _opt(output=str(tmp_path / "x.solution.mcap"), rrd_image_rate_hz=0.0))

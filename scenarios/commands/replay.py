@@ -29,6 +29,9 @@ def add_arguments(p) -> None:
     p.add_argument("--vision-config", default=None, help="vision config TOML (default: the library default)")
     p.add_argument("--vision-rate", type=float, default=None, metavar="HZ",
                    help="process at most HZ frames per second per camera (e.g. 5 for a 30 frames/s video; default: all)")
+    p.add_argument("--rrd-image-rate", type=float, default=None, metavar="HZ",
+                   help="camera images (with overlays) in the Rerun recording per second and camera "
+                        "(default: every processed frame; vectors and time series keep every frame)")
     p.add_argument("--mask", action="append", default=[], metavar="K=FILE",
                    help="payload mask of camera K: an image of the camera's size, non-zero = payload "
                         "(ignored by the edge search); repeatable; default: the log's /camera_<K>/payload_mask")
@@ -58,6 +61,7 @@ def options_from_args(args):
     return ReplayOptions(tuning=args.tuning, t_from=args.t_from, t_to=args.t_to, cameras=cams, targets=targets,
                          init=args.init, init_file=args.init_file, smoother=args.smoother, vision=args.vision,
                          vision_config=args.vision_config, vision_rate_hz=getattr(args, "vision_rate", None),
+                         rrd_image_rate_hz=getattr(args, "rrd_image_rate", None),
                          masks=masks, workers=args.workers, output=args.output,
                          rrd="" if args.no_rerun else args.rrd, spawn=args.spawn,
                          progress=not args.quiet and not args.json)

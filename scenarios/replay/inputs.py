@@ -233,6 +233,17 @@ def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cam
     return ReplayInputs(p, liftoff, imu, gps, cams, truth, a, b, dict(info), notes)
 
 
+def frames_in(t_ns, a, b, rate_hz=None) -> np.ndarray:
+    """Indices of the frames in [a, b]; with ``rate_hz`` the first frame of every 1/rate_hz bucket
+    from ``a`` on (a 30 frames/s video at 5 Hz: every 6th frame)."""
+    t = np.asarray(t_ns, np.int64)
+    sel = np.flatnonzero((t >= a) & (t <= b))
+    if rate_hz is None or sel.size == 0:
+        return sel
+    bucket = ((t[sel] - a) * float(rate_hz) // NS).astype(np.int64)
+    return sel[np.unique(bucket, return_index=True)[1]]
+
+
 def window_imu(imu: ImuData, a: int, b: int) -> ImuData:
     m = (imu.t_ns >= a) & (imu.t_ns <= b)
     return ImuData(imu.t_ns[m], imu.f_b[m], imu.w_b[m], imu.sample)

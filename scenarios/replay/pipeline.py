@@ -67,6 +67,7 @@ class ReplayOptions:
     vision: str = "auto"               #: "auto", "images", "vectors"
     vision_config: str | None = None
     vision_rate_hz: float | None = None  #: process at most this many frames per second per camera (None: all)
+    rrd_image_rate_hz: float | None = None  #: images (and overlays) in the recording per second per camera (None: all)
     masks: dict = field(default_factory=dict)  #: camera -> payload mask image file (overrides the log's)
     workers: int = 0
     output: str | None = None          #: solution MCAP (default FLIGHT.solution.mcap)
@@ -230,6 +231,8 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
         raise UserError(f"--vision {opt.vision}: expected auto, images or vectors")
     if opt.vision_rate_hz is not None and not (math.isfinite(opt.vision_rate_hz) and opt.vision_rate_hz > 0):
         raise UserError(f"--vision-rate {opt.vision_rate_hz}: expected a positive number of frames per second")
+    if opt.rrd_image_rate_hz is not None and not (math.isfinite(opt.rrd_image_rate_hz) and opt.rrd_image_rate_hz > 0):
+        raise UserError(f"--rrd-image-rate {opt.rrd_image_rate_hz}: expected a positive number of frames per second")
     if opt.init not in (None, "truth", "given", "triad"):
         raise UserError(f"--init {opt.init}: expected truth, given or triad")
     inp = I.load_inputs(path, t_from=opt.t_from, t_to=opt.t_to, cameras=opt.cameras,
@@ -296,7 +299,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             "vision": mode, "window_ns": f"{a},{b}"}
     n_frames = 0
     if mode == "images":
-        n_frames = sum(_frames_in(inp.cameras[k].images.t_ns, a, b, opt.vision_rate_hz).size for k in cam_numbers)
+        n_frames = sum(I.frames_in(inp.cameras[k].images.t_ns, a, b, opt.vision_rate_hz).size for k in cam_numbers)
     prog = _Progress(n_frames, ["init", "filter"] + (["smoother"] if opt.smoother else []) + ["write"]
                      + (["rerun"] if (opt.rrd != "" or opt.spawn) else []), opt.progress, timings, cpu)
     w = LogWriter(out, meta)
@@ -364,7 +367,8 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             from scenarios.replay.rerun_view import record
             rrd = None if opt.spawn and not opt.rrd else Path(opt.rrd or out.with_name(
                 out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
-            record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn, timings=rerun_parts)
+            record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn, timings=rerun_parts,
+                   image_rate_hz=opt.rrd_image_rate_hz)
     prog.close()
     return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init,
                         cpu, rerun_parts)
@@ -492,7 +496,7 @@ def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
         c = inp.cameras[k]
         cams[k] = c.camera
         configs[k] = load_vision_config(opt.vision_config, camera=c.camera)
-        for i in _frames_in(c.images.t_ns, a, b, opt.vision_rate_hz):
+        for i in I.frames_in(c.images.t_ns, a, b, opt.vision_rate_hz):
             rows.append((int(c.images.t_ns[i]), k, int(i)))
     rows.sort()
     # one config per camera only differs through the focal length; the worker takes one config
@@ -602,17 +606,6 @@ def _run_images(plan: _ImagePlan, opt, frames_out, progress=None, on_pool_start=
     if not plan.jobs:
         return frames_out, None
     return frames_out, _vd(_run_plan(plan, plan.jobs, opt, frames_out, progress, on_pool_start))
-
-
-def _frames_in(t_ns, a, b, rate_hz=None) -> np.ndarray:
-    """Indices of the frames in [a, b]; with ``rate_hz`` the first frame of every 1/rate_hz bucket
-    from ``a`` on (a 30 frames/s video at 5 Hz: every 6th frame)."""
-    t = np.asarray(t_ns, np.int64)
-    sel = np.flatnonzero((t >= a) & (t <= b))
-    if rate_hz is None or sel.size == 0:
-        return sel
-    bucket = ((t[sel] - a) * float(rate_hz) // NS).astype(np.int64)
-    return sel[np.unique(bucket, return_index=True)[1]]
 
 
 def _targets_only(cfg, targets):

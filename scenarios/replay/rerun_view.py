@@ -91,10 +91,13 @@ def blueprint(cam_numbers, x_e=None):
 
 
 def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *, spawn: bool = False,
-           timings: dict | None = None):
+           timings: dict | None = None, image_rate_hz: float | None = None):
     """Write the recording to ``path`` (.rrd) and/or spawn the viewer. Every time-varying entity is
     sent as columns (``send_columns``), one call per entity; ``timings`` (optional dict) receives
-    the seconds spent per part (static, scene, images, series, flush)."""
+    the seconds spent per part (static, scene, images, series, flush). ``image_rate_hz``: the
+    camera images and their overlays at most this many per second and camera (the first frame of
+    each interval; the vectors and time series keep every frame): a 30 frames/s video otherwise
+    copies ~9 MB of JPEG per second of flight into the recording."""
     import time
     import rerun as rr
     tm = timings if timings is not None else {}
@@ -110,7 +113,8 @@ def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *,
     tm["static"] = time.perf_counter() - t
     # the images first: Rerun encodes and writes them (most of the recording's bytes) in its own
     # threads while the scene and the time series are computed here
-    for name, fn, args in (("images", _images, (rec, rr, inp, frames, cam_numbers)),
+    shown = frames if image_rate_hz is None else _every(frames, cam_numbers, image_rate_hz)
+    for name, fn, args in (("images", _images, (rec, rr, inp, shown, cam_numbers)),
                            ("scene", _scene, (rec, rr, inp, res, vectors, cam_numbers, frames)),
                            ("series", _timeseries, (rec, rr, inp, res, smooth, vectors, cam_numbers))):
         t = time.perf_counter()
@@ -250,6 +254,18 @@ def _images(rec, rr, inp, frames, cam_numbers):
                     rec.send_columns(p, indexes=_times(rr, inp, t),
                                      columns=rr.Points2D.columns(positions=np.concatenate(parts)).partition(
                                          [len(a) for a in parts]))
+
+
+def _every(frames, cam_numbers, rate_hz) -> list:
+    """The frames of each camera thinned to the first one per 1/rate_hz interval."""
+    from scenarios.replay.inputs import frames_in
+    out = []
+    for k in cam_numbers:
+        fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
+        if fr:
+            t = np.array([f.t_ns for f in fr], np.int64)
+            out += [fr[i] for i in frames_in(t, int(t[0]), int(t[-1]), rate_hz)]
+    return out
 
 
 def _jpegs(inp, frames, cam_numbers) -> dict:
