@@ -35,7 +35,8 @@ from scenarios.importer.footage import check_jpeg, jpeg_structure
 from scenarios.importer.mapping import load_mapping
 from scenarios.log_reader import read_log
 from scenarios.log_writer import LogWriter
-from scenarios.render import RenderOptions, flight_frame_truths, render_flight_frames
+from scenarios.render import (DEFAULT_PAYLOAD_MASK, RenderOptions, flight_frame_truths, payload_mask,
+                              render_flight_frames)
 from scenarios.scenario import load_scenario
 from scenarios.simulate import simulate_flight
 
@@ -61,7 +62,8 @@ def flight(tmp_path_factory):
     sel = [r for i in range(len(fl.cameras)) for r in [q for q in recs if q.camera_index == i][:4]]
     frames = render_flight_frames([c.camera for c in fl.cameras], sel, seed=3, progress=False,
                                   options=RenderOptions(cloud_map_size=128))
-    log = write_log(fl, d / "sim.mcap", images=((fl.cameras[i].k, t, b) for i, t, b in frames))
+    masks = {c.k: payload_mask(c.camera, DEFAULT_PAYLOAD_MASK) for c in fl.cameras}
+    log = write_log(fl, d / "sim.mcap", images=((fl.cameras[i].k, t, b) for i, t, b in frames), masks=masks)
     exp = export_log(log, d / "exp")
     return {"dir": d, "log": log, "exp": exp, "flight": fl, "orig": read_log(log)}
 
@@ -92,6 +94,9 @@ def test_round_trip_tables_and_image_folder_are_exact(flight):
         assert all(x == y for x, y in zip(ca.images, cb.images)) and len(cb.images) == 4  # byte-identical
         assert np.array_equal(ca.info.k, cb.info.k) and np.array_equal(ca.info.d, cb.info.d)
         assert np.array_equal(a.tf_static[f"camera_{k}"].q, b.tf_static[f"camera_{k}"].q)
+        ma, mb = (cv2.imdecode(np.frombuffer(x.other[f"/camera_{k}/payload_mask"][1][0], np.uint8),
+                               cv2.IMREAD_GRAYSCALE) for x in (a, b))
+        assert np.array_equal(ma, mb) and 0.01 < (mb > 0).mean() < 0.2   # the payload mask, exactly
     assert res.counts == {"imu": 2400, "gps": 1201, "camera_1": 4, "camera_2": 4}
     # report: files written; the spin saturates gyro x at 1000 deg/s (range, quantised to 0.03)
     assert (d / "report" / "report.json").exists() and (d / "report" / "report.png").stat().st_size > 10_000
@@ -398,6 +403,18 @@ mount = {{ azimuth_deg = 90.0, depression_deg = 20.0 }}
 [cameras.footage]
 {footage}
 """)
+
+
+def test_payload_mask_of_the_wrong_size_names_the_key(tmp_path):
+    _camera_file(tmp_path)
+    _small_imu(tmp_path)
+    m = _camera_mapping(tmp_path, 'images = "frames"\nstart_s = 0.0\nrate_hz = 1.0')
+    m.write_text(m.read_text().replace('camera_file = "cam.toml"', 'camera_file = "cam.toml"\npayload_mask = "mask.png"'))
+    (tmp_path / "frames").mkdir()
+    cv2.imwrite(str(tmp_path / "frames" / "f0.jpg"), np.zeros((48, 64, 3), np.uint8))
+    cv2.imwrite(str(tmp_path / "mask.png"), np.zeros((10, 10), np.uint8))
+    with pytest.raises(UserError, match=r"payload_mask: .*mask.png is 10x10 px, expected the camera file's 64x48"):
+        import_flight(m, tmp_path / "o.mcap")
 
 
 def test_video_shorter_than_declared_and_keep_partial(tmp_path):

@@ -51,6 +51,7 @@ class Prepared:
     cameras: list  # [(CameraSpec, FisheyeCamera, Footage | None)]
     report: Report
     timings: dict = field(default_factory=dict)
+    masks: dict = field(default_factory=dict)  # camera k -> (H, W) bool payload mask
 
     @property
     def footages(self) -> list[Footage]:
@@ -78,18 +79,33 @@ def prepare(mapping: Mapping) -> Prepared:
     t = time.perf_counter()
     gps = read_gps(mapping.gps, mapping.liftoff_ns) if mapping.gps else None
     tm["gps_read_s"] = time.perf_counter() - t
-    cams = []
+    cams, masks = [], {}
     for cs in mapping.cameras:
         cam = load_camera(cs.camera_file)
         fp = plan_footage(cs.footage, cs.k, cam.width, cam.height, mapping.liftoff_ns) if cs.footage else None
         cams.append((cs, cam, fp))
+        if cs.payload_mask is not None:
+            masks[cs.k] = _read_mask(mapping.path, cs, cam)
     t = time.perf_counter()
     rep = validate(imu, gps, [f for *_, f in cams if f is not None], checks=mapping.checks,
                    liftoff_ns=mapping.liftoff_ns,
                    gyro_unit=mapping.imu.gyro.unit if mapping.imu else "rad/s",
                    accel_unit=mapping.imu.accel.unit if mapping.imu else "m/s^2")
     tm["validate_s"] = time.perf_counter() - t
-    return Prepared(mapping, imu, gps, cams, rep, tm)
+    return Prepared(mapping, imu, gps, cams, rep, tm, masks)
+
+
+def _read_mask(mapping_path, cs, cam) -> np.ndarray:
+    """The camera's payload mask image as (H, W) bool (non-zero = payload), checked against the
+    camera file's size."""
+    import cv2
+    m = cv2.imread(str(cs.payload_mask), cv2.IMREAD_GRAYSCALE)
+    if m is None:
+        raise UserError(f"{mapping_path}: cameras (k = {cs.k}).payload_mask: {cs.payload_mask} is not a readable image")
+    if m.shape != (cam.height, cam.width):
+        raise UserError(f"{mapping_path}: cameras (k = {cs.k}).payload_mask: {cs.payload_mask} is {m.shape[1]}x{m.shape[0]} "
+                        f"px, expected the camera file's {cam.width}x{cam.height}")
+    return m > 0
 
 
 def _windows(t0: int, t1: int, window_s: float) -> np.ndarray:
@@ -123,6 +139,8 @@ def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, windo
             K, D = to_opencv(cam)
             w.write_camera_info(cs.k, np.array([t0], np.int64), cam.width, cam.height, K, D,
                                 distortion_model="equidistant")
+            if cs.k in prep.masks:
+                w.write_payload_mask(cs.k, t0, prep.masks[cs.k])
         gens = [(cs.k, iter(fp.frames())) for cs, _, fp in prep.cameras if fp is not None]
         nxt = [next(g, None) for _, g in gens]
         lo_i = lo_g = 0

@@ -159,6 +159,12 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
         common = ["[[cameras]]", f"k = {k}", f'camera_file = "camera_{k}.toml"',
                   "mount = { quaternion = [" + ", ".join(map(_toml_float, q)) + "] }",
                   "translation_m = [" + ", ".join(map(_toml_float, tr)) + "]"]
+        pm = log.other.get(f"/camera_{k}/payload_mask")
+        if pm is not None and len(pm[0]):
+            mfile = out / f"camera_{k}_mask.png"
+            mfile.write_bytes(pm[1][0])          # the log's PNG as it is
+            res.files[f"camera_{k}_mask"] = mfile
+            common.append(f'payload_mask = "camera_{k}_mask.png"')
         ims = c.images
         if ims is None or len(ims) == 0:
             cam_img.append("\n".join(common + [""]))

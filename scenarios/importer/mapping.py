@@ -23,6 +23,7 @@ Format and examples: docs/import.md and scenarios/library/import/. Sketch::
     [[cameras]]
     camera_file = "cam1.toml"
     mount = { azimuth_deg = 90.0, depression_deg = 20.0, roll_deg = 0.0 }
+    payload_mask = "cam1_mask.png"     # optional: the vehicle's structure in view (non-zero = payload)
     [cameras.footage]
     video = "cam1.mp4"
     start_s = 0.0
@@ -174,6 +175,7 @@ class CameraSpec:
     q_bc: np.ndarray
     translation_m: np.ndarray
     footage: FootageSpec | None
+    payload_mask: Path | None = None   #: image of the camera's size, non-zero = payload (ignored by the edge search)
 
 
 @dataclass(frozen=True)
@@ -542,7 +544,8 @@ def parse_mount(ctx: _Ctx, d: Any, where: str) -> np.ndarray:
 
 def parse_camera(ctx: _Ctx, d: Any, i: int, liftoff_ns: int) -> CameraSpec:
     w = f"cameras[{i}]"
-    d = _table(ctx, d, w, {"k", "camera_file", "mount", "translation_m", "footage"}, {"camera_file", "mount"})
+    d = _table(ctx, d, w, {"k", "camera_file", "mount", "translation_m", "footage", "payload_mask"},
+               {"camera_file", "mount"})
     k = d.get("k", i + 1)
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
         raise ctx.err(w, f"key 'k' = {k!r}; expected a camera number >= 1")
@@ -559,7 +562,8 @@ def parse_camera(ctx: _Ctx, d: Any, i: int, liftoff_ns: int) -> CameraSpec:
         q_bc = q_bc if abs(np.linalg.norm(q_bc) - 1.0) < 1e-12 else q_bc / np.linalg.norm(q_bc)
     else:
         q_bc = matrix_to_quat(R)
-    return CameraSpec(k, _path(ctx, d["camera_file"], w, "camera_file"), R, q_bc, tr, fs)
+    mask = _path(ctx, d["payload_mask"], w, "payload_mask") if "payload_mask" in d else None
+    return CameraSpec(k, _path(ctx, d["camera_file"], w, "camera_file"), R, q_bc, tr, fs, mask)
 
 
 def parse_checks(ctx: _Ctx, d: Any) -> Checks:
