@@ -27,7 +27,7 @@ from scenarios.errors import UserError
 from scenarios.atomic import atomic_write_text
 from vision.camera import FisheyeCamera, camera_from_dict, camera_to_dict
 
-__all__ = ["load_camera", "save_camera", "dumps_camera"]
+__all__ = ["load_camera", "save_camera", "dumps_camera", "payload_mask_from_image", "read_payload_mask"]
 
 
 def load_camera(path: str | os.PathLike) -> FisheyeCamera:
@@ -77,3 +77,30 @@ def dumps_camera(camera: FisheyeCamera, comment: str = "") -> str:
 def save_camera(camera: FisheyeCamera, path: str | os.PathLike, comment: str = "") -> None:
     """Write a camera file atomically (temporary file + rename)."""
     atomic_write_text(path, dumps_camera(camera, comment))
+
+
+def payload_mask_from_image(data: bytes, camera: FisheyeCamera | None, where: str,
+                            expected: str = "the camera's"):
+    """(H, W) bool payload mask (non-zero = payload, ignored by the edge search, 003 §3.1) from an
+    encoded image (PNG, JPEG, ...), checked against ``camera``'s size when given; UserError
+    ``"{where}: ..."`` for bytes that are not an image or an image of another size."""
+    import cv2
+    import numpy as np
+    m = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+    if m is None:
+        raise UserError(f"{where}: not a readable image")
+    if camera is not None and m.shape != (camera.height, camera.width):
+        raise UserError(f"{where}: {m.shape[1]}x{m.shape[0]} px, expected {expected} "
+                        f"{camera.width}x{camera.height}")
+    return m > 0
+
+
+def read_payload_mask(path: str | os.PathLike, camera: FisheyeCamera | None, where: str,
+                      expected: str = "the camera's"):
+    """:func:`payload_mask_from_image` of an image file (a missing file is "not a readable image")."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        data = b""
+    return payload_mask_from_image(data, camera, where, expected)
+

@@ -413,7 +413,7 @@ def test_payload_mask_of_the_wrong_size_names_the_key(tmp_path):
     (tmp_path / "frames").mkdir()
     cv2.imwrite(str(tmp_path / "frames" / "f0.jpg"), np.zeros((48, 64, 3), np.uint8))
     cv2.imwrite(str(tmp_path / "mask.png"), np.zeros((10, 10), np.uint8))
-    with pytest.raises(UserError, match=r"payload_mask: .*mask.png is 10x10 px, expected the camera file's 64x48"):
+    with pytest.raises(UserError, match=r"payload_mask: .*mask.png: 10x10 px, expected the camera file's 64x48"):
         import_flight(m, tmp_path / "o.mcap")
 
 

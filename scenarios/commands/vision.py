@@ -44,7 +44,7 @@ def _record_dict(r) -> dict:
 def run(args) -> int:
     import cv2
 
-    from scenarios.camera_file import load_camera
+    from scenarios.camera_file import load_camera, read_payload_mask
     from scenarios.jpeg import decode_frame
     from scenarios.vision_config import load_vision_config
     from vision import mask as vmask
@@ -61,13 +61,7 @@ def run(args) -> int:
         lat = math.radians(args.lat)
     mask = None
     if args.mask:
-        m = cv2.imread(args.mask, cv2.IMREAD_GRAYSCALE)
-        if m is None:
-            raise UserError(f"--mask {args.mask}: not a readable image")
-        if m.shape != (cam.height, cam.width):
-            raise UserError(f"--mask {args.mask}: size {m.shape[1]}x{m.shape[0]}, expected the camera's "
-                            f"{cam.width}x{cam.height}")
-        mask = vmask.from_binary(m > 0)
+        mask = vmask.from_binary(read_payload_mask(args.mask, cam, f"--mask {args.mask}"))
     out_dir = Path(args.annotate) if args.annotate else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)

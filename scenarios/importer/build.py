@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios.camera_file import load_camera
+from scenarios.camera_file import load_camera, read_payload_mask
 from scenarios.errors import UserError
 from vision.camera import to_opencv
 
@@ -85,7 +85,8 @@ def prepare(mapping: Mapping) -> Prepared:
         fp = plan_footage(cs.footage, cs.k, cam.width, cam.height, mapping.liftoff_ns) if cs.footage else None
         cams.append((cs, cam, fp))
         if cs.payload_mask is not None:
-            masks[cs.k] = _read_mask(mapping.path, cs, cam)
+            masks[cs.k] = read_payload_mask(cs.payload_mask, cam, f"{mapping.path}: cameras (k = {cs.k})"
+                                            f".payload_mask: {cs.payload_mask}", "the camera file's")
     t = time.perf_counter()
     rep = validate(imu, gps, [f for *_, f in cams if f is not None], checks=mapping.checks,
                    liftoff_ns=mapping.liftoff_ns,
@@ -93,19 +94,6 @@ def prepare(mapping: Mapping) -> Prepared:
                    accel_unit=mapping.imu.accel.unit if mapping.imu else "m/s^2")
     tm["validate_s"] = time.perf_counter() - t
     return Prepared(mapping, imu, gps, cams, rep, tm, masks)
-
-
-def _read_mask(mapping_path, cs, cam) -> np.ndarray:
-    """The camera's payload mask image as (H, W) bool (non-zero = payload), checked against the
-    camera file's size."""
-    import cv2
-    m = cv2.imread(str(cs.payload_mask), cv2.IMREAD_GRAYSCALE)
-    if m is None:
-        raise UserError(f"{mapping_path}: cameras (k = {cs.k}).payload_mask: {cs.payload_mask} is not a readable image")
-    if m.shape != (cam.height, cam.width):
-        raise UserError(f"{mapping_path}: cameras (k = {cs.k}).payload_mask: {cs.payload_mask} is {m.shape[1]}x{m.shape[0]} "
-                        f"px, expected the camera file's {cam.width}x{cam.height}")
-    return m > 0
 
 
 def _windows(t0: int, t1: int, window_s: float) -> np.ndarray:

@@ -267,16 +267,10 @@ __all__ = ["CameraSetup", "ReplayInputs", "Truth", "load_inputs", "parse_time", 
 
 
 def _payload_mask(path, log, k, camera) -> np.ndarray | None:
-    """The log's ``/camera_<k>/payload_mask`` (first message, PNG/JPEG, non-zero = payload) as a
-    (H, W) bool array, checked against the camera's size; None when absent."""
+    """The log's ``/camera_<k>/payload_mask`` (first message, non-zero = payload) as a (H, W) bool
+    array, checked against the camera's size; None when absent."""
+    from scenarios.camera_file import payload_mask_from_image
     item = log.other.get(f"/camera_{k}/payload_mask")
     if item is None or not len(item[0]):
         return None
-    import cv2
-    m = cv2.imdecode(np.frombuffer(item[1][0], np.uint8), cv2.IMREAD_GRAYSCALE)
-    if m is None:
-        raise UserError(f"{path}: /camera_{k}/payload_mask: not a decodable image")
-    if camera is not None and m.shape != (camera.height, camera.width):
-        raise UserError(f"{path}: /camera_{k}/payload_mask: {m.shape[1]}x{m.shape[0]} px, expected the camera's "
-                        f"{camera.width}x{camera.height}")
-    return m > 0
+    return payload_mask_from_image(item[1][0], camera, f"{path}: /camera_{k}/payload_mask")

@@ -520,8 +520,7 @@ def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
 def _payload_masks(inp, cam_numbers, files: dict) -> dict:
     """Camera -> `vision.mask.PayloadMask`: ``--mask K=FILE`` where given, else the log's
     ``/camera_<k>/payload_mask``; cameras without either are searched without a mask."""
-    import cv2
-
+    from scenarios.camera_file import read_payload_mask
     from vision import mask as vmask
     unknown = sorted(set(files) - set(cam_numbers))
     if unknown:
@@ -530,14 +529,7 @@ def _payload_masks(inp, cam_numbers, files: dict) -> dict:
     for k in cam_numbers:
         m = inp.cameras[k].mask
         if k in files:
-            img = cv2.imread(str(files[k]), cv2.IMREAD_GRAYSCALE)
-            if img is None:
-                raise UserError(f"--mask {k}={files[k]}: not a readable image")
-            cam = inp.cameras[k].camera
-            if img.shape != (cam.height, cam.width):
-                raise UserError(f"--mask {k}={files[k]}: {img.shape[1]}x{img.shape[0]} px, expected camera {k}'s "
-                                f"{cam.width}x{cam.height}")
-            m = img > 0
+            m = read_payload_mask(files[k], inp.cameras[k].camera, f"--mask {k}={files[k]}", f"camera {k}'s")
         if m is not None:
             out[k] = vmask.from_binary(m)
     return out
