@@ -922,14 +922,12 @@ def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) 
     a = np.asarray(R_ec, dtype=float) @ np.asarray(e_c, dtype=float)
     a /= np.linalg.norm(a)
     b = -np.asarray(x_e, dtype=float) / np.linalg.norm(x_e)
+    from nav.rotation import rotvec_to_matrix
     axis = np.cross(a, b)
     s, c = float(np.linalg.norm(axis)), float(a @ b)
     if s < 1e-15:
         return np.asarray(R_ec, dtype=float)
-    k = axis / s
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    R = np.eye(3) + s * K + (1.0 - c) * (K @ K)        # Rodrigues: rotates a onto b
-    return R @ np.asarray(R_ec, dtype=float)
+    return rotvec_to_matrix(axis * (math.atan2(s, c) / s)) @ np.asarray(R_ec, dtype=float)
 
 
 def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit, J=None):
