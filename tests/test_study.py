@@ -21,7 +21,7 @@ HEAD = """
 [study]
 name = "{name}"
 scenario = "atek"
-seed = 5
+seed = {seed}
 runs = {runs}
 {extra}
 [set]
@@ -34,8 +34,9 @@ runs = {runs}
 """
 
 
-def study_text(name="t", runs=2, t_end=100.0, extra="", body=""):
-    return HEAD.format(name=name, runs=runs, t_end=t_end, extra=extra) + body
+def study_text(name="t", runs=2, t_end=100.0, extra="", body="", seed=5):
+    """A small atek-coast study with the matched tuning (docs/studies.md), as TOML text."""
+    return HEAD.format(name=name, runs=runs, t_end=t_end, extra=extra, seed=seed) + body
 
 
 def write_study(tmp_path, **kw):

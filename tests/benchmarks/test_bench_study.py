@@ -11,25 +11,13 @@ import pandas as pd
 
 from scenarios.study.execute import run_study
 from scenarios.study.studyfile import load_study
+from tests.test_study import study_text
 
 
 def _study(tmp_path, quick):
     runs, t_end = (4, 120.0) if quick else (8, 430.0)
     p = tmp_path / "bench.toml"
-    p.write_text(f"""
-[study]
-name = "bench"
-scenario = "atek"
-seed = 1
-runs = {runs}
-[set]
-"run.t_end_s" = {t_end}
-"tuning.accel_white" = 4.903325e-4
-"tuning.gyro_white" = 1.454441e-4
-"tuning.vector_white" = 1.0e-4
-"tuning.init_att_sigma" = 8.726646e-3
-"run.init_att_sigma_deg" = 0.5
-""")
+    p.write_text(study_text("bench", runs, t_end, seed=1))
     return load_study(p)
 
 
