@@ -117,11 +117,14 @@ def test_sigint_leaves_valid_partial_log(vlog, tmp_path):
     """SIGINT while the filter runs (the CLI process signals itself from inside the filter call, so
     the moment does not depend on the machine's speed): exit code 130, and the solution file is a
     valid MCAP marked incomplete, with the vectors given to the filter (docs/replay.md: what 'up to
-    the interruption' contains)."""
+    the interruption' contains). The Rerun recording, begun before the filter, is abandoned: neither
+    the .rrd nor its temporary file remains."""
     from scenarios.log_reader import read_log
     out = tmp_path / "int.solution.mcap"
-    proc = subprocess.run([sys.executable, "-c", _SIGINT_CHILD, "replay", str(vlog), "-o", str(out), "--no-rerun",
+    rrd = tmp_path / "int.rrd"
+    proc = subprocess.run([sys.executable, "-c", _SIGINT_CHILD, "replay", str(vlog), "-o", str(out), "--rrd", str(rrd),
                            "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert sorted(p.name for p in tmp_path.iterdir() if "rrd" in p.name) == [], list(tmp_path.iterdir())
     assert proc.returncode == 130, proc.stderr
     assert "partial solution log written" in proc.stderr
     log = read_log(out)

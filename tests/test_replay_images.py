@@ -294,3 +294,17 @@ def test_recording_image_rate(ilog, tmp_path):
     assert len(rr.frames) == 10 and rrd.stat().st_size > 0
     with pytest.raises(UserError, match="--rrd-image-rate"):
         replay(ilog, _opt(output=str(tmp_path / "x.solution.mcap"), rrd_image_rate_hz=0.0))
+
+
+def test_chunks_partition_the_jobs_in_order():
+    """The vision tasks cover every job once, in order, none larger than the chunk size, and the
+    tail of 2 x workers x size frames is split into quarter-size tasks."""
+    from scenarios.replay.vision_worker import _chunks
+    for n in range(0, 120, 7):
+        for size in (1, 2, 16):
+            for workers in (1, 2, 3):
+                c = _chunks(list(range(n)), size, workers)
+                assert sum(c, []) == list(range(n))
+                assert all(0 < len(x) <= size for x in c)
+    c = _chunks(list(range(100)), 16, 2)
+    assert [len(x) for x in c] == [16, 16, 4] + [4] * 16

@@ -21,13 +21,17 @@ Stages (timed; ``ReplayResult.timings``):
 4. **filter**: :func:`nav.navigator.run` (one call over the window; it cannot be resumed).
 5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
 6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
-7. **rerun**: the recording (:mod:`.rerun_view`).
+7. **rerun**: the recording (:mod:`.rerun_view`), in two parts: begun right after the vision with
+   the camera images and overlays (their JPEG bytes read by a thread while the workers run), which
+   Rerun's own threads encode and write while the filter and the smoother run here; finished after
+   writing with the solution (3D scene, time series). Its time is the sum of both parts.
 
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
 (``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that
 moment: interrupted during vision, the vectors of the frames processed so far; during the filter or smoother,
 all vectors (as given to the filter) but no solution, since the filter runs in one call; during
-writing or Rerun, the complete solution.
+writing or Rerun, the complete solution. An unfinished recording is abandoned (its temporary
+file deleted): a .rrd exists only complete.
 """
 from __future__ import annotations
 
@@ -138,8 +142,10 @@ class _Progress:
         self.stage(name)
         t, c0 = time.perf_counter(), _cpu()
         yield
-        self.wall[name] = time.perf_counter() - t
-        self.cpu[name] = _cpu() - c0
+        # a stage timed in parts (the Rerun recording: begun before the filter, finished after
+        # writing) accumulates
+        self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - t
+        self.cpu[name] = self.cpu.get(name, 0.0) + _cpu() - c0
         if block:
             self.end_stage()
 
@@ -306,18 +312,25 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     frames = []
     vectors = None
     res = sm = None
+    recording = preload = None
+    rerun_parts: dict = {}
+    want_rrd = opt.rrd != "" or opt.spawn
+    rrd = None if not want_rrd or (opt.spawn and not opt.rrd) else Path(
+        opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     try:
         if mode == "images":
-            plan = _image_plan(inp, cam_numbers, opt, a, b)
             with prog.timed("init"):
+                plan = _image_plan(inp, cam_numbers, opt, a, b)
                 # an attitude first (TRIAD on a sparse pass without attitude prior, or given/truth),
                 # then every frame with the free-inertial attitude as the vision's prior
                 pre = _triad_pass(plan, inp, cam_numbers, opt, imu) if opt.init in (None, "triad") else None
                 init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, cam_numbers, mode, msgs)
                 _attach_priors(plan, imu, init, inp, cam_numbers)
+            # Rerun's import and the recording's JPEG bytes, read in a thread while the workers run
+            preload = _RerunPreload(inp, plan.jobs, cam_numbers, opt.rrd_image_rate_hz) if want_rrd else None
             with prog.timed("vision", block=False):  # the frames are its steps
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
-                                              on_pool_start=_preload_rerun if (opt.rrd != "" or opt.spawn) else None)
+                                              on_pool_start=preload.start if preload else None)
                 if init_method == "triad" and vectors is not None:
                     try:   # TRIAD again on the vectors measured with the attitude prior
                         init, tri_init = _triad(imu, gps, vectors, [inp.cameras[k].R_bc for k in cam_numbers])
@@ -330,6 +343,15 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
         R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
         gc.freeze()   # the vision results likewise
+        if want_rrd:
+            # the recording's images first: Rerun encodes and writes them (most of its bytes) in its
+            # own threads while the filter and the smoother run here (on the otherwise idle core)
+            with prog.timed("rerun", block=False):
+                from scenarios.replay import rerun_view as RV
+                track = gps.x_e if gps is not None and len(gps.t_ns) else None
+                recording = RV.begin(inp, frames, cam_numbers, rrd, spawn=opt.spawn, track=track,
+                                     timings=rerun_parts, image_rate_hz=opt.rrd_image_rate_hz,
+                                     jpegs=preload.images(frames) if preload else None)
         with prog.timed("filter"):
             try:
                 res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc,
@@ -346,29 +368,30 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             w.close()
     except KeyboardInterrupt:
         prog.close()
+        _abandon_recording(recording)
         stage = prog.current
         note = ""
         if stage == "vision":
             vectors = _vd([(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
                            for f in frames for r in f.records if r.camera in cam_numbers])
             note = "; /camera_<k>/vectors: the frames processed so far (geocentric nadir, attitude prior from the INS)"
-        if stage in ("vision", "init", "filter", "smoother"):
+        if stage in ("vision", "init", "filter", "smoother") or (stage == "rerun" and res is None):
             SL.write_vectors(w, vectors, cam_numbers)
         w.close(complete=False, reason=f"KeyboardInterrupt during {stage}" + note)
         raise
     except BaseException:
         prog.close()
+        _abandon_recording(recording)
         w.discard()
         raise
-    rrd = None
-    rerun_parts: dict = {}
-    if opt.rrd != "" or opt.spawn:
-        with prog.timed("rerun"):
-            from scenarios.replay.rerun_view import record
-            rrd = None if opt.spawn and not opt.rrd else Path(opt.rrd or out.with_name(
-                out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
-            record(inp, res, sm, vectors, cam_numbers, frames, rrd, spawn=opt.spawn, timings=rerun_parts,
-                   image_rate_hz=opt.rrd_image_rate_hz)
+    if recording is not None:
+        try:
+            with prog.timed("rerun"):
+                RV.finish(recording, inp, res, sm, vectors, cam_numbers, frames)
+        except BaseException:
+            prog.close()
+            _abandon_recording(recording)
+            raise
     prog.close()
     return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init,
                         cpu, rerun_parts)
@@ -454,19 +477,52 @@ def _correct_earth(vectors, imu, init, inp, R_bc):
     return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
 
 
-def _preload_rerun() -> None:
-    """Import rerun (about 1 s) in a daemon thread while this process waits for the vision workers.
-    Called after the workers are forked, so that no fork happens while the import holds a lock."""
-    import threading
+def _abandon_recording(recording) -> None:
+    """Close an unfinished Rerun recording (if one was begun) and delete its temporary file."""
+    if recording is not None:
+        from scenarios.replay.rerun_view import abandon
+        abandon(recording)
 
-    def imp():
+
+class _RerunPreload:
+    """While the vision workers run, this process only waits: a daemon thread imports Rerun (about
+    1 s) and reads the JPEG bytes of the frames the recording will show (the log's chunks
+    decompressed once more, ~0.2 s for the demo). :meth:`start` is called after the workers are
+    forked, so that no fork happens while the thread holds a lock; until then this process's image
+    streams are not touched by the thread (single-process vision reads them itself)."""
+
+    def __init__(self, inp, jobs, cam_numbers, image_rate_hz):
+        self.inp, self.cam_numbers, self.rate = inp, cam_numbers, image_rate_hz
+        self.jobs = jobs
+        self.thread = None
+        self.result = None
+
+    def start(self) -> None:
+        import threading
+        self.thread = threading.Thread(target=self._run, name="preload-rerun", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
         try:
             import importlib
             importlib.import_module("rerun.blueprint")  # imports rerun too
             importlib.import_module("pandas")           # pyarrow imports it at rerun's first conversion
-        except Exception:  # noqa: BLE001 - the Rerun stage imports it again and reports the error
-            pass
-    threading.Thread(target=imp, name="preload-rerun", daemon=True).start()
+            from scenarios.replay.rerun_view import read_images, shown_frames
+            shown = shown_frames(self.jobs, self.cam_numbers, self.rate)
+            self.result = (sorted((j.k, j.t_ns) for j in shown), read_images(self.inp, shown, self.cam_numbers))
+        except Exception:  # noqa: BLE001 - the Rerun stage imports and reads again and reports the error
+            self.result = None
+
+    def images(self, frames) -> dict | None:
+        """The pre-read bytes if they are those of ``frames``' shown images, else None."""
+        if self.thread is None:
+            return None
+        self.thread.join()
+        if self.result is None:
+            return None
+        from scenarios.replay.rerun_view import shown_frames
+        keys = sorted((f.k, f.t_ns) for f in shown_frames(frames, self.cam_numbers, self.rate))
+        return self.result[1] if keys == self.result[0] else None
 
 
 #: spacing [s] of the frames the TRIAD search looks at (the vision runs there without attitude)

@@ -28,6 +28,7 @@ Entities (timelines ``utc`` = absolute time and ``mission_time`` = T+ seconds):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -90,43 +91,93 @@ def blueprint(cam_numbers, x_e=None):
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"))
 
 
-def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *, spawn: bool = False,
-           timings: dict | None = None, image_rate_hz: float | None = None):
-    """Write the recording to ``path`` (.rrd) and/or spawn the viewer. Every time-varying entity is
-    sent as columns (``send_columns``), one call per entity; ``timings`` (optional dict) receives
-    the seconds spent per part (static, scene, images, series, flush). ``image_rate_hz``: the
-    camera images and their overlays at most this many per second and camera (the first frame of
-    each interval; the vectors and time series keep every frame): a 30 frames/s video otherwise
-    copies ~9 MB of JPEG per second of flight into the recording."""
+@dataclass
+class Recording:
+    """An open recording between :func:`begin` and :func:`finish` (or :func:`abandon`)."""
+
+    rec: object
+    path: Path | None   #: final .rrd (None: viewer only)
+    tmp: Path | None    #: the file being written, renamed to ``path`` by :func:`finish`
+    timings: dict
+
+
+def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, track=None,
+          timings: dict | None = None, image_rate_hz: float | None = None, jpegs: dict | None = None) -> Recording:
+    """Open the recording (``path`` .rrd, written to a temporary name until :func:`finish`, and/or
+    the viewer) and send the camera images with the front end's overlays: most of the recording's
+    bytes, which Rerun encodes and writes in its own threads while the caller runs the filter and
+    the smoother. ``track``: positions (N, 3) known before the filter (GPS) to aim the 3D view.
+    ``image_rate_hz``: the camera images and their overlays at most this many per second and
+    camera (the first frame of each interval; the vectors and time series keep every frame): a 30
+    frames/s video otherwise copies ~9 MB of JPEG per second of flight into the recording.
+    ``timings`` (optional dict) receives the seconds per part (static, images, scene, series, flush).
+    ``jpegs``: the images' bytes as :func:`read_images` gives them for these frames, when read
+    beforehand (e.g. while the vision workers run); else they are read here."""
     import time
     import rerun as rr
     tm = timings if timings is not None else {}
     t = time.perf_counter()
     rec = rr.RecordingStream("horizon-nav", recording_id=f"replay-{Path(inp.path).stem}")
+    tmp = None
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(path).with_name("." + Path(path).name + ".tmp")
-        rec.save(str(tmp), default_blueprint=blueprint(cam_numbers, res.x_e))
+        rec.save(str(tmp), default_blueprint=blueprint(cam_numbers, track))
     if spawn:
-        rec.spawn(default_blueprint=blueprint(cam_numbers, res.x_e))
-    _static(rec, rr, inp, res)
+        rec.spawn(default_blueprint=blueprint(cam_numbers, track))
     tm["static"] = time.perf_counter() - t
-    # the images first: Rerun encodes and writes them (most of the recording's bytes) in its own
-    # threads while the scene and the time series are computed here
-    shown = frames if image_rate_hz is None else _every(frames, cam_numbers, image_rate_hz)
-    for name, fn, args in (("images", _images, (rec, rr, inp, shown, cam_numbers)),
-                           ("scene", _scene, (rec, rr, inp, res, vectors, cam_numbers, frames)),
-                           ("series", _timeseries, (rec, rr, inp, res, smooth, vectors, cam_numbers))):
+    t = time.perf_counter()
+    shown = shown_frames(frames, cam_numbers, image_rate_hz)
+    _images(rec, rr, inp, shown, cam_numbers, jpegs)
+    tm["images"] = time.perf_counter() - t
+    return Recording(rec, None if path is None else Path(path), tmp, tm)
+
+
+def finish(r: Recording, inp, res, smooth, vectors, cam_numbers, frames) -> Path | None:
+    """Send the solution (trajectory, 3D scene, time series), wait for Rerun to write everything
+    and move the file to its name; returns the path."""
+    import time
+    import rerun as rr
+    tm = r.timings
+    for name, fn, args in (("static", _static, (r.rec, rr, inp, res)),
+                           ("scene", _scene, (r.rec, rr, inp, res, vectors, cam_numbers, frames)),
+                           ("series", _timeseries, (r.rec, rr, inp, res, smooth, vectors, cam_numbers))):
         t = time.perf_counter()
         fn(*args)
-        tm[name] = time.perf_counter() - t
+        tm[name] = tm.get(name, 0.0) + time.perf_counter() - t
     t = time.perf_counter()
-    rec.flush()
-    if path is not None:
-        rec.disconnect()
-        tmp.replace(path)
+    r.rec.flush()
+    if r.tmp is not None:
+        r.rec.disconnect()
+        r.tmp.replace(r.path)
     tm["flush"] = time.perf_counter() - t
-    return path
+    return r.path
+
+
+def abandon(r: Recording | None) -> None:
+    """Close an unfinished recording and delete its temporary file (the run failed or was
+    interrupted before the solution existed: no half recording under the final name)."""
+    if r is None:
+        return
+    try:
+        r.rec.disconnect()
+    finally:
+        if r.tmp is not None:
+            r.tmp.unlink(missing_ok=True)
+
+
+def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *, spawn: bool = False,
+           timings: dict | None = None, image_rate_hz: float | None = None):
+    """The whole recording in one call (:func:`begin` then :func:`finish`), for a solution that
+    already exists. Every time-varying entity is sent as columns (``send_columns``), one call per
+    entity."""
+    r = begin(inp, frames, cam_numbers, path, spawn=spawn, track=res.x_e, timings=timings,
+              image_rate_hz=image_rate_hz)
+    try:
+        return finish(r, inp, res, smooth, vectors, cam_numbers, frames)
+    except BaseException:
+        abandon(r)
+        raise
 
 
 def _static(rec, rr, inp, res):
@@ -217,10 +268,10 @@ _OVERLAY = (("edges", [150, 150, 150], 1.0), ("inliers", [0, 255, 0], 1.5), ("ou
             ("conic", None, 1.5), ("point", None, 8.0))
 
 
-def _images(rec, rr, inp, frames, cam_numbers):
+def _images(rec, rr, inp, frames, cam_numbers, jpegs=None):
     """Each frame as its JPEG bytes (EncodedImage) with the front end's overlay, one column send per
     entity; a frame without an overlay part shows none (empty row)."""
-    jpeg = _jpegs(inp, frames, cam_numbers)
+    jpeg = dict(jpegs) if jpegs is not None else read_images(inp, frames, cam_numbers)
     for k in cam_numbers:
         fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
         if not fr:
@@ -256,6 +307,12 @@ def _images(rec, rr, inp, frames, cam_numbers):
                                          [len(a) for a in parts]))
 
 
+def shown_frames(frames, cam_numbers, rate_hz=None) -> list:
+    """The frames (anything with ``k`` and ``t_ns``) whose images go into the recording: all, or
+    with ``rate_hz`` the first one per 1/rate_hz interval of each camera."""
+    return list(frames) if rate_hz is None else _every(frames, cam_numbers, rate_hz)
+
+
 def _every(frames, cam_numbers, rate_hz) -> list:
     """The frames of each camera thinned to the first one per 1/rate_hz interval."""
     from scenarios.replay.inputs import frames_in
@@ -268,7 +325,7 @@ def _every(frames, cam_numbers, rate_hz) -> list:
     return out
 
 
-def _jpegs(inp, frames, cam_numbers) -> dict:
+def read_images(inp, frames, cam_numbers) -> dict:
     """camera -> the JPEG bytes of its frames (time order, the image at or after each frame time).
 
     The images of all cameras are read in log time order, the order of the log's chunks: the

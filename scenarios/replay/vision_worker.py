@@ -226,7 +226,7 @@ def _run(jobs, cameras, config, masks, images, workers, chunk_size, out, progres
         kw = {"mp_context": mp.get_context("spawn"), "initializer": _init_spawned, "initargs": (cameras, config, masks)}
     else:
         kw = {"mp_context": ctx, "initializer": _init_forked}
-    chunks = [rest[i:i + chunk_size] for i in range(0, len(rest), chunk_size)]
+    chunks = _chunks(rest, chunk_size, workers)
     with ProcessPoolExecutor(max_workers=min(workers, len(chunks)), **kw) as ex:
         try:
             it = ex.map(_chunk, chunks)    # submits every chunk: with fork, the workers are forked here,
@@ -237,6 +237,16 @@ def _run(jobs, cameras, config, masks, images, workers, chunk_size, out, progres
         except BaseException:
             ex.shutdown(wait=False, cancel_futures=True)
             raise
+
+
+def _chunks(jobs: list, size: int, workers: int) -> list:
+    """``jobs`` in tasks of ``size`` frames, the last ``2 * workers * size`` frames in tasks of a
+    quarter of that: the workers then finish together instead of one waiting for the other's last
+    full task (half a task, ~50 ms for 16 demo frames, on average)."""
+    tail = min(len(jobs), 2 * workers * size)
+    head, small = len(jobs) - tail, max(1, size // 4)
+    return ([jobs[i:min(i + size, head)] for i in range(0, head, size)]
+            + [jobs[i:i + small] for i in range(head, len(jobs), small)])
 
 
 def _init_forked() -> None:
