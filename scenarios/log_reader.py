@@ -27,6 +27,7 @@ A file that is not MCAP at all (or unreadable) raises ``LogFormatError`` (a ``Us
 """
 from __future__ import annotations
 
+import os
 import struct
 import warnings
 from dataclasses import dataclass, field
@@ -102,6 +103,12 @@ class ImageStream:
 
     def __len__(self) -> int:
         return len(self.t_ns)
+
+    @property
+    def sizes(self) -> np.ndarray:
+        """(N,) bytes of each image message (the JPEG plus a few dozen bytes of header), known
+        without reading the images."""
+        return np.asarray(self._loc[:, 2], np.int64)
 
     def _decode(self, i):
         seg, off, ln = (int(x) for x in self._loc[i])
@@ -279,6 +286,17 @@ class _Reader:
 # --------------------------------------------------------------------------------------------
 # read_log
 # --------------------------------------------------------------------------------------------
+def _map(path: Path):
+    """The file's bytes as a read-only memory map (an empty file: ``b""``): a long video log is
+    not copied into this process (images are read on demand, and forked vision workers share the
+    pages); the bytes stay valid when the file is replaced by a new one (new inode)."""
+    import mmap
+    with open(path, "rb") as f:
+        if os.fstat(f.fileno()).st_size == 0:
+            return b""
+        return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+
+
 def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
     """Read a horizon-nav MCAP log.
 
@@ -298,7 +316,7 @@ def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
     """
     path = Path(path)
     try:
-        data = path.read_bytes()
+        data = _map(path)
     except OSError as e:
         raise LogFormatError(f"{path}: cannot read log ({e.strerror or e})") from None
     if len(data) < 8 or data[:8] != MAGIC:

@@ -308,3 +308,38 @@ def test_chunks_partition_the_jobs_in_order():
                 assert all(0 < len(x) <= size for x in c)
     c = _chunks(list(range(100)), 16, 2)
     assert [len(x) for x in c] == [16, 16, 4] + [4] * 16
+
+
+def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypatch):
+    """Images sent in batches of ~2 frames (bounded memory for long video logs, Rerun flushed
+    between batches): the recording read back with Rerun's own reader holds every frame's JPEG
+    bytes of the log, byte for byte, in time order; the preload thread's first batch is the one
+    the recording would read itself."""
+    from rerun.chunk import RrdReader
+    from scenarios.replay import rerun_view
+    from scenarios.replay.pipeline import _RerunPreload, replay
+    from scenarios.replay.inputs import load_inputs
+    inp = load_inputs(ilog)
+    limit = int(2.5 * max(c.images.sizes.max() for c in inp.cameras.values()))
+    monkeypatch.setattr(rerun_view, "IMAGE_BATCH_BYTES", limit)
+    rrd = tmp_path / "b.rrd"
+    rr = replay(ilog, _opt(output=str(tmp_path / "b.solution.mcap"), rrd=str(rrd), workers=1, smoother=False,
+                           init="truth"))
+    cams = rr.cam_numbers
+    batches = rerun_view.image_batches(rr.inputs, rr.frames, cams)
+    assert len(batches) == 5 and sum(len(b) for b in batches) == len(rr.frames) == 10
+    blobs = {k: [] for k in cams}
+    for ch in RrdReader(str(rrd)).store().stream():
+        for k in cams:
+            if ch.entity_path == f"/camera_{k}/image" and not ch.is_static:
+                rb = ch.to_record_batch()
+                order = np.argsort(rb.column("mission_time").to_numpy())
+                col = rb.column("EncodedImage:blob").to_pylist()
+                blobs[k] += [bytes(col[i][0]) for i in order]
+    for k in cams:
+        st = inp.cameras[k].images
+        t = sorted(f.t_ns for f in rr.frames if f.k == k)
+        assert blobs[k] == [st[int(np.searchsorted(st.t_ns, x))] for x in t], k
+    pre = _RerunPreload(rr.inputs, rr.frames, cams, None)
+    pre.start()
+    assert pre.images(rr.frames) == rerun_view.read_images(rr.inputs, batches[0], cams)

@@ -486,8 +486,9 @@ def _abandon_recording(recording) -> None:
 
 class _RerunPreload:
     """While the vision workers run, this process only waits: a daemon thread imports Rerun (about
-    1 s) and reads the JPEG bytes of the frames the recording will show (the log's chunks
-    decompressed once more, ~0.2 s for the demo). :meth:`start` is called after the workers are
+    1 s) and reads the JPEG bytes of the first batch of frames the recording will show
+    (:func:`.rerun_view.image_batches`: all of the demo's; the log's chunks decompressed once
+    more, ~0.2 s). :meth:`start` is called after the workers are
     forked, so that no fork happens while the thread holds a lock; until then this process's image
     streams are not touched by the thread (single-process vision reads them itself)."""
 
@@ -507,22 +508,26 @@ class _RerunPreload:
             import importlib
             importlib.import_module("rerun.blueprint")  # imports rerun too
             importlib.import_module("pandas")           # pyarrow imports it at rerun's first conversion
-            from scenarios.replay.rerun_view import read_images, shown_frames
-            shown = shown_frames(self.jobs, self.cam_numbers, self.rate)
-            self.result = (sorted((j.k, j.t_ns) for j in shown), read_images(self.inp, shown, self.cam_numbers))
+            from scenarios.replay.rerun_view import image_batches, read_images, shown_frames
+            first = image_batches(self.inp, shown_frames(self.jobs, self.cam_numbers, self.rate), self.cam_numbers)[:1]
+            if first:
+                self.result = (sorted((j.k, j.t_ns) for j in first[0]), read_images(self.inp, first[0], self.cam_numbers))
         except Exception:  # noqa: BLE001 - the Rerun stage imports and reads again and reports the error
             self.result = None
 
     def images(self, frames) -> dict | None:
-        """The pre-read bytes if they are those of ``frames``' shown images, else None."""
+        """The pre-read bytes if they are those of the first image batch of ``frames``' shown
+        images (:func:`.rerun_view.image_batches`), else None."""
         if self.thread is None:
             return None
         self.thread.join()
         if self.result is None:
             return None
-        from scenarios.replay.rerun_view import shown_frames
-        keys = sorted((f.k, f.t_ns) for f in shown_frames(frames, self.cam_numbers, self.rate))
-        return self.result[1] if keys == self.result[0] else None
+        from scenarios.replay.rerun_view import image_batches, shown_frames
+        first = image_batches(self.inp, shown_frames(frames, self.cam_numbers, self.rate), self.cam_numbers)[:1]
+        keys = sorted((f.k, f.t_ns) for f in first[0]) if first else []
+        (want, got), self.result = self.result, None      # handed over: not kept alive here
+        return got if keys == want else None
 
 
 #: spacing [s] of the frames the TRIAD search looks at (the vision runs there without attitude)
