@@ -317,7 +317,7 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
     the recording would read itself."""
     from rerun.chunk import RrdReader
     from scenarios.replay import rerun_view
-    from scenarios.replay.pipeline import _RerunPreload, replay
+    from scenarios.replay.pipeline import _Preload, replay
     from scenarios.replay.inputs import load_inputs
     inp = load_inputs(ilog)
     limit = int(2.5 * max(c.images.sizes.max() for c in inp.cameras.values()))
@@ -340,6 +340,10 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
         st = inp.cameras[k].images
         t = sorted(f.t_ns for f in rr.frames if f.k == k)
         assert blobs[k] == [st[int(np.searchsorted(st.t_ns, x))] for x in t], k
-    pre = _RerunPreload(rr.inputs, rr.frames, cams, None)
+    pre = _Preload(rr.inputs, rr.frames, cams, None)
     pre.start()
-    assert pre.images(rr.frames) == rerun_view.read_images(rr.inputs, batches[0], cams)
+    got, want = pre.images(rr.frames), rerun_view.read_blobs(rr.inputs, batches[0], cams)
+    assert got.keys() == want.keys() == set(cams)
+    for k in cams:
+        assert got[k].as_arrow_array().equals(want[k].as_arrow_array())
+        assert len(got[k].as_arrow_array()) == sum(f.k == k for f in batches[0])

@@ -317,6 +317,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     want_rrd = opt.rrd != "" or opt.spawn
     rrd = None if not want_rrd or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
+    R_bc_all = [inp.cameras[k].R_bc for k in cam_numbers]
     try:
         if mode == "images":
             with prog.timed("init"):
@@ -326,8 +327,10 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 pre = _triad_pass(plan, inp, cam_numbers, opt, imu) if opt.init in (None, "triad") else None
                 init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, cam_numbers, mode, msgs)
                 _attach_priors(plan, imu, init, inp, cam_numbers)
-            # Rerun's import and the recording's JPEG bytes, read in a thread while the workers run
-            preload = _RerunPreload(inp, plan.jobs, cam_numbers, opt.rrd_image_rate_hz) if want_rrd else None
+            # Rerun's import, the recording's JPEG bytes and the filter's kernels, loaded in a thread
+            # while the workers run
+            preload = _Preload(inp, plan.jobs, cam_numbers, opt.rrd_image_rate_hz, record=want_rrd,
+                               warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc_all, opt.smoother))
             with prog.timed("vision", block=False):  # the frames are its steps
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
                                               on_pool_start=preload.start if preload else None)
@@ -341,7 +344,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
             with prog.timed("init"):
                 init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
-        R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
+        R_bc = R_bc_all
         gc.freeze()   # the vision results likewise
         if want_rrd:
             # the recording's images first: Rerun encodes and writes them (most of its bytes) in its
@@ -351,7 +354,9 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 track = gps.x_e if gps is not None and len(gps.t_ns) else None
                 recording = RV.begin(inp, frames, cam_numbers, rrd, spawn=opt.spawn, track=track,
                                      timings=rerun_parts, image_rate_hz=opt.rrd_image_rate_hz,
-                                     jpegs=preload.images(frames) if preload else None)
+                                     blobs=preload.images(frames) if preload else None)
+        if preload is not None:
+            preload.join()     # its warm-up run of the filter has ended
         with prog.timed("filter"):
             try:
                 res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc,
@@ -484,17 +489,20 @@ def _abandon_recording(recording) -> None:
         abandon(recording)
 
 
-class _RerunPreload:
+class _Preload:
     """While the vision workers run, this process only waits: a daemon thread imports Rerun (about
     1 s) and reads the JPEG bytes of the first batch of frames the recording will show
     (:func:`.rerun_view.image_batches`: all of the demo's; the log's chunks decompressed once
-    more, ~0.2 s). :meth:`start` is called after the workers are
-    forked, so that no fork happens while the thread holds a lock; until then this process's image
-    streams are not touched by the thread (single-process vision reads them itself)."""
+    more, ~0.2 s) as the Arrow arrays the recording sends (``record``), then calls ``warm`` (the
+    filter's numba kernels loaded by a short run, :func:`_warm_filter`). :meth:`start` is called
+    after the workers are forked, so that no fork happens while the thread holds a lock; until then
+    this process's image streams are not touched by the thread (single-process vision reads them
+    itself). :meth:`join` before the filter runs."""
 
-    def __init__(self, inp, jobs, cam_numbers, image_rate_hz):
+    def __init__(self, inp, jobs, cam_numbers, image_rate_hz, record: bool = True, warm=None):
         self.inp, self.cam_numbers, self.rate = inp, cam_numbers, image_rate_hz
         self.jobs = jobs
+        self.record, self.warm = record, warm
         self.thread = None
         self.result = None
 
@@ -504,14 +512,27 @@ class _RerunPreload:
         self.thread.start()
 
     def _run(self) -> None:
+        if self.record:
+            self._read()
+        if self.warm is not None:
+            try:
+                self.warm()
+            except Exception:  # noqa: BLE001 - a warm-up only: the filter itself reports its errors
+                pass
+
+    def join(self) -> None:
+        if self.thread is not None:
+            self.thread.join()
+
+    def _read(self) -> None:
         try:
             import importlib
             importlib.import_module("rerun.blueprint")  # imports rerun too
             importlib.import_module("pandas")           # pyarrow imports it at rerun's first conversion
-            from scenarios.replay.rerun_view import image_batches, read_images, shown_frames
+            from scenarios.replay.rerun_view import image_batches, read_blobs, shown_frames
             first = image_batches(self.inp, shown_frames(self.jobs, self.cam_numbers, self.rate), self.cam_numbers)[:1]
             if first:
-                self.result = (sorted((j.k, j.t_ns) for j in first[0]), read_images(self.inp, first[0], self.cam_numbers))
+                self.result = (sorted((j.k, j.t_ns) for j in first[0]), read_blobs(self.inp, first[0], self.cam_numbers))
         except Exception:  # noqa: BLE001 - the Rerun stage imports and reads again and reports the error
             self.result = None
 
@@ -520,7 +541,7 @@ class _RerunPreload:
         images (:func:`.rerun_view.image_batches`), else None."""
         if self.thread is None:
             return None
-        self.thread.join()
+        self.join()
         if self.result is None:
             return None
         from scenarios.replay.rerun_view import image_batches, shown_frames
@@ -528,6 +549,37 @@ class _RerunPreload:
         keys = sorted((f.k, f.t_ns) for f in first[0]) if first else []
         (want, got), self.result = self.result, None      # handed over: not kept alive here
         return got if keys == want else None
+
+
+def _warm_filter(imu, init, tuning, gps, vectors, R_bc, smoother: bool) -> None:
+    """The filter (and the smoother) on the first second of the window, the result discarded:
+    numba loads the filter's cached kernels (~0.2 s in a new process) while this process waits for
+    the vision workers instead of when the filter starts. A few of the TRIAD search's vectors
+    (``vectors``), stamped inside that second, load the vector-update kernels; the filter's log
+    messages are muted meanwhile."""
+    from nav.navigator import run as nav_run
+    from nav.smoother import rts_smooth
+    b = init.t_ns + NS
+    im = I.window_imu(imu, init.t_ns, b)
+    if im.t_ns.size < 3:
+        return
+    v = None
+    if vectors is not None and len(vectors.t_ns):
+        n = min(4, len(vectors.t_ns))
+        v = VectorData(np.full(n, im.t_ns[im.t_ns.size // 2]), np.asarray(vectors.camera)[:n],
+                       np.asarray(vectors.target)[:n], np.asarray(vectors.e_c)[:n], np.asarray(vectors.P_c)[:n])
+    logs = [logging.getLogger(n) for n in logging.root.manager.loggerDict if n == "nav" or n.startswith("nav.")]
+    was = [lg.disabled for lg in logs]
+    for lg in logs:
+        lg.disabled = True
+    try:
+        res = nav_run(im, init, tuning, gps=I.window_gps(gps, init.t_ns, b), vectors=v, R_bc=R_bc,
+                      store_for_smoother=smoother)
+        if smoother:
+            rts_smooth(res)
+    finally:
+        for lg, w in zip(logs, was):
+            lg.disabled = w
 
 
 #: spacing [s] of the frames the TRIAD search looks at (the vision runs there without attitude)

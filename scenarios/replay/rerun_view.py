@@ -102,7 +102,7 @@ class Recording:
 
 
 def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, track=None,
-          timings: dict | None = None, image_rate_hz: float | None = None, jpegs: dict | None = None) -> Recording:
+          timings: dict | None = None, image_rate_hz: float | None = None, blobs: dict | None = None) -> Recording:
     """Open the recording (``path`` .rrd, written to a temporary name until :func:`finish`, and/or
     the viewer) and send the camera images with the front end's overlays: most of the recording's
     bytes, which Rerun encodes and writes in its own threads while the caller runs the filter and
@@ -111,8 +111,8 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     camera (the first frame of each interval; the vectors and time series keep every frame): a 30
     frames/s video otherwise copies ~9 MB of JPEG per second of flight into the recording.
     ``timings`` (optional dict) receives the seconds per part (static, images, scene, series, flush).
-    ``jpegs``: the images' bytes as :func:`read_images` gives them for these frames, when read
-    beforehand (e.g. while the vision workers run); else they are read here."""
+    ``blobs``: the first image batch as :func:`read_blobs` gives it, when read beforehand (e.g.
+    while the vision workers run); else it is read here."""
     import time
     import rerun as rr
     tm = timings if timings is not None else {}
@@ -128,7 +128,7 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     tm["static"] = time.perf_counter() - t
     t = time.perf_counter()
     shown = shown_frames(frames, cam_numbers, image_rate_hz)
-    _images(rec, rr, inp, shown, cam_numbers, jpegs)
+    _images(rec, rr, inp, shown, cam_numbers, blobs)
     tm["images"] = time.perf_counter() - t
     return Recording(rec, None if path is None else Path(path), tmp, tm)
 
@@ -269,8 +269,9 @@ _OVERLAY = (("edges", [150, 150, 150], 1.0), ("inliers", [0, 255, 0], 1.5), ("ou
 
 
 #: JPEG bytes read and sent to Rerun at a time: a long video log's images are not all held in
-#: memory (a 6 min coast at 30 frames/s and two cameras is ~3 GB); Rerun is flushed between batches
-IMAGE_BATCH_BYTES = 256 * 2 ** 20
+#: memory (a 6 min coast at 30 frames/s and two cameras is ~3 GB); Rerun is flushed between
+#: batches. Below 2 GiB: Arrow list offsets are int32.
+IMAGE_BATCH_BYTES = 2 ** 30
 
 
 def image_batches(inp, frames, cam_numbers, max_bytes: int | None = None) -> list:
@@ -298,12 +299,18 @@ def image_batches(inp, frames, cam_numbers, max_bytes: int | None = None) -> lis
     return out
 
 
-def _images(rec, rr, inp, frames, cam_numbers, jpegs=None):
+def read_blobs(inp, frames, cam_numbers) -> dict:
+    """camera -> the JPEG bytes of its ``frames`` (time order) as one Arrow blob array, ready for
+    ``EncodedImage.columns``; cameras without frames are left out."""
+    return {k: _blob_batch(v) for k, v in read_images(inp, frames, cam_numbers).items() if v}
+
+
+def _images(rec, rr, inp, frames, cam_numbers, blobs=None):
     """Each frame as its JPEG bytes (EncodedImage) with the front end's overlay: the images in
-    :func:`image_batches` (one column send per camera and batch; ``jpegs``: the first batch's bytes
-    if already read), waiting for Rerun to write each batch before the next is read when there are
-    several; the overlays one column send per entity (a frame without an overlay part shows none:
-    empty row)."""
+    :func:`image_batches` (one column send per camera and batch; ``blobs``: the first batch's
+    :func:`read_blobs` if already read), waiting for Rerun to write each batch before the next is
+    read when there are several; the overlays one column send per entity (a frame without an
+    overlay part shows none: empty row)."""
     batches = image_batches(inp, frames, cam_numbers)
     for k in cam_numbers:
         if any(f.k == k for f in frames):
@@ -311,13 +318,13 @@ def _images(rec, rr, inp, frames, cam_numbers, jpegs=None):
     for n, batch in enumerate(batches):
         if n:
             rec.flush()    # bounded memory: the previous batch is written before this one is read
-        jpeg = jpegs if n == 0 and jpegs is not None else read_images(inp, batch, cam_numbers)
+        got = blobs if n == 0 and blobs is not None else read_blobs(inp, batch, cam_numbers)
         for k in cam_numbers:
             t = np.array(sorted(f.t_ns for f in batch if f.k == k), np.int64)
             if t.size:
                 rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t),
-                                 columns=rr.EncodedImage.columns(blob=_blob_batch(jpeg[k])))
-        del jpeg
+                                 columns=rr.EncodedImage.columns(blob=got[k]))
+        del got
     for k in cam_numbers:
         fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
         if not fr:

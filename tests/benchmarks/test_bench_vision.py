@@ -24,6 +24,7 @@ import numpy as np
 
 from nav import ephemeris
 from scenarios import render
+from scenarios.jpeg import decode_frame
 from scenarios.vision_config import load_vision_config
 from vision import mask as vmask
 from vision.camera import project
@@ -117,7 +118,7 @@ def _evaluate(look, times, fl, recs, cfg, mask):
                no_sun=0, miss=0, horizon=0, base_err=[], frames=0)
     rng = np.random.default_rng(0)
     for r, jpg, tr in _frames(look, times, fl, recs):
-        img = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
+        img = decode_frame(jpg)    # the replay's decoder (scenarios/jpeg.py)
         R_ec = _pose(look, r)
         sun_c = R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e)   # predicted Sun (ephemeris + attitude prior)
         res = process_frame(img, cam, cfg, mask=mask, prior=FramePrior(r.x_e, R_ec, sun_c=sun_c), rng=rng,
@@ -160,7 +161,7 @@ def _speed(bench, fl, recs, cfg, mask, n):
     # a frame with both the horizon and the Sun (camera 2 early in the coast, as in 003 fig. 23)
     best = None
     for r, jpg, tr in _frames("disturbed", range(61, 200, 3), fl, recs):
-        img = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
+        img = decode_frame(jpg)    # the replay's decoder (scenarios/jpeg.py)
         res = process_frame(img, cam, cfg, mask=mask, prior=FramePrior(r.x_e, r.R_ec))
         if res.record("earth") is not None and res.record("sun") is not None:
             best = (r, jpg, img)
@@ -179,7 +180,6 @@ def _speed(bench, fl, recs, cfg, mask, n):
             ts.append(time.perf_counter() - t0)
         return 1e3 * float(np.median(ts))
 
-    from scenarios.jpeg import decode_frame
     # the in-run baseline: decoding the same frame with the decoder the replay uses (libjpeg-turbo
     # through simplejpeg); OpenCV's imdecode of it as a second figure
     t_dec = med(lambda: decode_frame(jpg), max(10, n // 2))
