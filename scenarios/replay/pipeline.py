@@ -317,7 +317,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     want_rrd = opt.rrd != "" or opt.spawn
     rrd = None if not want_rrd or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
-    R_bc_all = [inp.cameras[k].R_bc for k in cam_numbers]
+    R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
     try:
         if mode == "images":
             with prog.timed("init"):
@@ -330,13 +330,13 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             # Rerun's import, the recording's JPEG bytes and the filter's kernels, loaded in a thread
             # while the workers run
             preload = _Preload(inp, plan.jobs, cam_numbers, opt.rrd_image_rate_hz, record=want_rrd,
-                               warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc_all, opt.smoother))
+                               warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc, opt.smoother))
             with prog.timed("vision", block=False):  # the frames are its steps
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
                                               on_pool_start=preload.start if preload else None)
                 if init_method == "triad" and vectors is not None:
                     try:   # TRIAD again on the vectors measured with the attitude prior
-                        init, tri_init = _triad(imu, gps, vectors, [inp.cameras[k].R_bc for k in cam_numbers])
+                        init, tri_init = _triad(imu, gps, vectors, R_bc)
                     except UserError as e:
                         msgs.append(f"TRIAD on the final vectors failed ({e}); kept the first TRIAD")
         else:
@@ -344,7 +344,6 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
             with prog.timed("init"):
                 init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
-        R_bc = R_bc_all
         gc.freeze()   # the vision results likewise
         if want_rrd:
             # the recording's images first: Rerun encodes and writes them (most of its bytes) in its
@@ -504,7 +503,7 @@ class _Preload:
         self.jobs = jobs
         self.record, self.warm = record, warm
         self.thread = None
-        self.result = None
+        self.blobs = None
 
     def start(self) -> None:
         import threading
@@ -532,23 +531,19 @@ class _Preload:
             from scenarios.replay.rerun_view import image_batches, read_blobs, shown_frames
             first = image_batches(self.inp, shown_frames(self.jobs, self.cam_numbers, self.rate), self.cam_numbers)[:1]
             if first:
-                self.result = (sorted((j.k, j.t_ns) for j in first[0]), read_blobs(self.inp, first[0], self.cam_numbers))
+                self.blobs = read_blobs(self.inp, first[0], self.cam_numbers)
         except Exception:  # noqa: BLE001 - the Rerun stage imports and reads again and reports the error
-            self.result = None
+            self.blobs = None
 
     def images(self, frames) -> dict | None:
-        """The pre-read bytes if they are those of the first image batch of ``frames``' shown
-        images (:func:`.rerun_view.image_batches`), else None."""
+        """The pre-read first image batch if ``frames`` are the jobs' frames (the batches are a
+        function of the frames' cameras and times), else None."""
         if self.thread is None:
             return None
         self.join()
-        if self.result is None:
-            return None
-        from scenarios.replay.rerun_view import image_batches, shown_frames
-        first = image_batches(self.inp, shown_frames(frames, self.cam_numbers, self.rate), self.cam_numbers)[:1]
-        keys = sorted((f.k, f.t_ns) for f in first[0]) if first else []
-        (want, got), self.result = self.result, None      # handed over: not kept alive here
-        return got if keys == want else None
+        blobs, self.blobs = self.blobs, None     # handed over: not kept alive here
+        same = sorted((f.k, f.t_ns) for f in frames) == sorted((j.k, j.t_ns) for j in self.jobs)
+        return blobs if same else None
 
 
 def _warm_filter(imu, init, tuning, gps, vectors, R_bc, smoother: bool) -> None:

@@ -166,20 +166,6 @@ def abandon(r: Recording | None) -> None:
             r.tmp.unlink(missing_ok=True)
 
 
-def record(inp, res, smooth, vectors, cam_numbers, frames, path: Path | None, *, spawn: bool = False,
-           timings: dict | None = None, image_rate_hz: float | None = None):
-    """The whole recording in one call (:func:`begin` then :func:`finish`), for a solution that
-    already exists. Every time-varying entity is sent as columns (``send_columns``), one call per
-    entity."""
-    r = begin(inp, frames, cam_numbers, path, spawn=spawn, track=res.x_e, timings=timings,
-              image_rate_hz=image_rate_hz)
-    try:
-        return finish(r, inp, res, smooth, vectors, cam_numbers, frames)
-    except BaseException:
-        abandon(r)
-        raise
-
-
 def _static(rec, rr, inp, res):
     rec.log("world/earth", rr.Ellipsoids3D(half_sizes=[[earth.A, earth.A, earth.B]], colors=[[40, 90, 160]],
                                            line_radii=[2000.0]), static=True)
@@ -282,13 +268,14 @@ def image_batches(inp, frames, cam_numbers, max_bytes: int | None = None) -> lis
     fr = sorted((f for f in frames if f.k in cam_numbers), key=lambda f: (f.t_ns, f.k))
     if not fr:
         return []
+    t = np.array([f.t_ns for f in fr], np.int64)
+    cam = np.array([f.k for f in fr])
     size = np.empty(len(fr), np.int64)
     for k in cam_numbers:
-        st = inp.cameras[k].images
-        m = np.array([f.k == k for f in fr])
+        m = cam == k
         if m.any():
-            t = np.array([f.t_ns for f in fr], np.int64)[m]
-            size[m] = st.sizes[np.clip(np.searchsorted(st.t_ns, t), 0, len(st) - 1)]
+            st = inp.cameras[k].images
+            size[m] = st.sizes[_image_index(st, t[m])]
     out, lo, acc = [], 0, 0
     for i, b in enumerate(size.tolist()):
         if i > lo and acc + b > max_bytes:
@@ -370,6 +357,12 @@ def _every(frames, cam_numbers, rate_hz) -> list:
     return out
 
 
+def _image_index(stream, t_ns) -> np.ndarray:
+    """Index in ``stream`` of the image of each frame time: the one at or after it (the last one
+    past the end)."""
+    return np.clip(np.searchsorted(stream.t_ns, t_ns), 0, len(stream) - 1)
+
+
 def read_images(inp, frames, cam_numbers) -> dict:
     """camera -> the JPEG bytes of its frames (time order, the image at or after each frame time).
 
@@ -383,8 +376,7 @@ def read_images(inp, frames, cam_numbers) -> dict:
         t = np.sort(np.array([f.t_ns for f in frames if f.k == k], np.int64))
         if not t.size:
             continue
-        idx = np.clip(np.searchsorted(st.t_ns, t), 0, len(st) - 1)
-        want += [(int(st.t_ns[i]), k, p, int(i)) for p, i in enumerate(idx)]
+        want += [(int(st.t_ns[i]), k, p, int(i)) for p, i in enumerate(_image_index(st, t))]
     out = {k: [None] * sum(1 for f in frames if f.k == k) for k in cam_numbers}
     for _, k, p, i in sorted(want):
         out[k][p] = inp.cameras[k].images[i]
