@@ -256,21 +256,19 @@ def test_white_vector_noise_is_drawn_as_told(tmp_path):
     assert abs(sig / 1e-3 - 1) < 0.2, sig
 
 
-def test_sigint_then_resume_gives_the_same_table(four_runs, tmp_path):
-    """A real interruption: the CLI is stopped with SIGINT once some runs have finished (in-process
-    executor, -j 0); the restart skips the finished runs and the final table equals the
-    uninterrupted one (four_runs)."""
+def _interrupt_study(st, tmp_path, jobs: str):
+    """Run the study CLI, send SIGINT once a run has finished; returns (out, finished files with
+    their mtimes, returncode, stderr)."""
     import signal
     import subprocess
     import sys
     import time
     from pathlib import Path
 
-    st, out_ref, _, _ = four_runs
     study = tmp_path / "four.toml"
     study.write_text(st.text)
     out = tmp_path / "interrupted"
-    cmd = [sys.executable, "-m", "scenarios.cli", "study", str(study), "-o", str(out), "-j", "0",
+    cmd = [sys.executable, "-m", "scenarios.cli", "study", str(study), "-o", str(out), "-j", jobs,
            "--no-progress", "--yes"]
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.Popen(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -279,13 +277,44 @@ def test_sigint_then_resume_gives_the_same_table(four_runs, tmp_path):
         if len(list((out / "runs").glob("*.parquet"))) >= 1:
             break
         time.sleep(0.05)
-    if proc.poll() is None:
+    sent = proc.poll() is None
+    if sent:
         proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
+    assert sent, f"the study finished before it could be interrupted: {err}"
     done = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.parquet")}
+    assert not list((out / "runs").glob(".*.tmp")), "a partial run file was left behind"
+    return out, done, proc.returncode, err
+
+
+def test_sigint_then_resume_gives_the_same_table(four_runs, tmp_path):
+    """A real interruption: the CLI is stopped with SIGINT once some runs have finished (in-process
+    executor, -j 0). It finishes the run under way, starts no other, exits with 130 and no
+    traceback; the restart skips the finished runs and the final table equals the uninterrupted
+    one (four_runs)."""
+    st, out_ref, _, _ = four_runs
+    out, done, code, err = _interrupt_study(st, tmp_path, "0")
     assert 1 <= len(done) < 8, "expected an interrupted study with some runs finished"
+    assert len(done) % 2 == 0, "a run is finished when both its files exist: the run under way finishes"
     assert not (out / "metrics.parquet").exists()
-    assert "Traceback" not in err
+    assert code == 130 and "Traceback" not in err
+    assert "finishing the runs under way" in err and "interrupted" in err.splitlines()[-1]
+    _resume_equals(st, out, out_ref, done)
+
+
+def test_sigint_on_a_process_pool_finishes_the_runs_under_way(four_runs, tmp_path):
+    """SIGINT to the study CLI on a 2-process pool (-j 2): the workers ignore it (no run dies
+    half-way), the parent waits for the runs under way, exits with 130 and no traceback; the
+    resumed study equals the uninterrupted one."""
+    st, out_ref, _, _ = four_runs
+    out, done, code, err = _interrupt_study(st, tmp_path, "2")
+    assert 2 <= len(done) <= 8 and len(done) % 2 == 0
+    assert not (out / "metrics.parquet").exists()
+    assert code == 130 and "Traceback" not in err and "finishing the runs under way" in err
+    _resume_equals(st, out, out_ref, done)
+
+
+def _resume_equals(st, out, out_ref, done):
     s = run_study(st, out, workers=0, progress=False)
     assert s["runs_skipped"] >= 1 and s["runs_remaining"] == 0
     # finished runs were not redone

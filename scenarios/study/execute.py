@@ -15,11 +15,20 @@ both by rename from a temporary file), so a study stopped at any point and start
 finished runs and redoes at most the ones that were in flight. The final tables are assembled from
 the per-run files, sorted by run index: the same seeds give the same tables whatever the executor,
 the number of workers or the order in which runs finish.
+
+Ctrl-C (SIGINT) stops a local study gracefully: the runs under way finish and are kept, no new run
+starts, then ``KeyboardInterrupt`` is raised (the CLI prints "interrupted", exit 130); a second
+Ctrl-C stops at once. An interrupt is never raised inside a run's library code (e.g. while numba
+loads a cached kernel, where Python could only print it as an ignored exception).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
+import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
@@ -137,6 +146,36 @@ def prepare_output(study: Study, out_dir: Path) -> None:
     atomic_write_text(copy, study.text)
 
 
+@contextlib.contextmanager
+def _graceful_interrupt():
+    """Within: the first SIGINT only sets the flag the yielded function returns (a message says the
+    runs under way are being finished); the second raises ``KeyboardInterrupt``. Outside the main
+    thread (no signal handlers there) the flag stays False and SIGINT behaves as usual."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    count = [0]
+
+    def handler(signum, frame):
+        count[0] += 1
+        if count[0] > 1:
+            raise KeyboardInterrupt
+        print("horizon-nav study: interrupted: finishing the runs under way (Ctrl-C again to stop now)",
+              file=sys.stderr, flush=True)
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: count[0] > 0
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _ignore_sigint() -> None:
+    """Pool worker initializer: the terminal's Ctrl-C reaches the whole process group; the parent
+    decides (finish the runs under way), a worker must not die mid-run."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_study(study: Study, out_dir, *, workers: int | None = None, scheduler: str | None = None,
               client=None, max_runs: int | None = None, yes: bool = False, progress: bool = True,
               report: bool = True) -> dict:
@@ -182,22 +221,18 @@ def run_study(study: Study, out_dir, *, workers: int | None = None, scheduler: s
             from dask.distributed import as_completed
             for f in as_completed(futs):
                 tick(f.result())
-        elif workers == 0:
-            for s in todo:
-                tick(execute_run(*args, s, str(out_dir)))
-        elif todo:
-            n_workers = workers or os.cpu_count() or 1
-            with ProcessPoolExecutor(max_workers=n_workers) as pool:
-                pending = {pool.submit(execute_run, *args, s, str(out_dir)) for s in todo}
-                try:
-                    while pending:
-                        fin, pending = wait(pending, return_when=FIRST_COMPLETED)
-                        for f in fin:
-                            tick(f.result())
-                except BaseException:
-                    for f in pending:
-                        f.cancel()
-                    raise
+        else:
+            with _graceful_interrupt() as interrupted:
+                if workers == 0:
+                    for s in todo:
+                        if interrupted():
+                            break
+                        tick(execute_run(*args, s, str(out_dir)))
+                elif todo:
+                    n_workers = workers or os.cpu_count() or 1
+                    _run_pool(n_workers, [(*args, s, str(out_dir)) for s in todo], tick, interrupted)
+                if interrupted():
+                    raise KeyboardInterrupt
     finally:
         if bar is not None:
             bar.close()
@@ -215,6 +250,26 @@ def run_study(study: Study, out_dir, *, workers: int | None = None, scheduler: s
             from scenarios.study.report import write_report
             write_report(out_dir)
     return summary
+
+
+def _run_pool(n_workers: int, calls: list, tick, interrupted) -> None:
+    """``execute_run(*call)`` for each call on a local process pool, ``tick`` on each result; once
+    ``interrupted()``, the runs not yet started are cancelled and the ones under way awaited."""
+    with ProcessPoolExecutor(max_workers=n_workers, initializer=_ignore_sigint) as pool:
+        pending = {pool.submit(execute_run, *c) for c in calls}
+        try:
+            while pending:
+                fin, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                for f in fin:
+                    if not f.cancelled():
+                        tick(f.result())
+                if interrupted():
+                    for f in pending:
+                        f.cancel()
+        except BaseException:
+            for f in pending:
+                f.cancel()
+            raise
 
 
 def assemble(study: Study, out_dir) -> tuple[pd.DataFrame, pd.DataFrame]:
