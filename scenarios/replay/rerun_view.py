@@ -260,6 +260,12 @@ _OVERLAY = (("edges", [150, 150, 150], 1.0), ("inliers", [0, 255, 0], 1.5), ("ou
 IMAGE_BATCH_BYTES = 2 ** 30
 
 
+#: Images per column send (one Rerun chunk each, ~1 MB of JPEG). Rerun 0.41 encodes and writes
+#: small chunks much faster than large ones: 1802 video frames (270 MB) took 0.23 s of CPU in
+#: chunks of 8 frames against 1.34 s in one chunk per camera (16: 0.30 s, 32: 0.62 s).
+IMAGES_PER_SEND = 8
+
+
 def image_batches(inp, frames, cam_numbers, max_bytes: int | None = None) -> list:
     """The frames (anything with ``k`` and ``t_ns``) in time order, cut into consecutive batches
     of at most ``max_bytes`` (default :data:`IMAGE_BATCH_BYTES`) of image messages (at least one
@@ -296,8 +302,9 @@ def _images(rec, rr, inp, frames, cam_numbers, blobs=None):
     """Each frame as its JPEG bytes (EncodedImage) with the front end's overlay: the images in
     :func:`image_batches` (one column send per camera and batch; ``blobs``: the first batch's
     :func:`read_blobs` if already read), waiting for Rerun to write each batch before the next is
-    read when there are several; the overlays one column send per entity (a frame without an
+    read when there are several; :data:`IMAGES_PER_SEND` frames per send); the overlays one column send per entity (a frame without an
     overlay part shows none: empty row)."""
+    from rerun.encodings import BlobBatch
     batches = image_batches(inp, frames, cam_numbers)
     for k in cam_numbers:
         if any(f.k == k for f in frames):
@@ -308,9 +315,11 @@ def _images(rec, rr, inp, frames, cam_numbers, blobs=None):
         got = blobs if n == 0 and blobs is not None else read_blobs(inp, batch, cam_numbers)
         for k in cam_numbers:
             t = np.array(sorted(f.t_ns for f in batch if f.k == k), np.int64)
-            if t.size:
-                rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t),
-                                 columns=rr.EncodedImage.columns(blob=got[k]))
+            arr = got[k].as_arrow_array() if t.size else None
+            for s in range(0, t.size, IMAGES_PER_SEND):
+                rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t[s:s + IMAGES_PER_SEND]),
+                                 columns=rr.EncodedImage.columns(
+                                     blob=BlobBatch(arr.slice(s, min(IMAGES_PER_SEND, t.size - s)))))
         del got
     for k in cam_numbers:
         fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
