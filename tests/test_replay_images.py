@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import types
+
 import numpy as np
 import pytest
 
@@ -310,12 +312,26 @@ def test_chunks_partition_the_jobs_in_order():
     assert [len(x) for x in c] == [16, 16, 4] + [4] * 16
 
 
+def _recorded_images(rrd, cams) -> dict:
+    """camera -> the JPEG bytes of its ``camera_<k>/image`` rows in a recording, in time order,
+    read with Rerun's own reader."""
+    from rerun.chunk import RrdReader
+    rows = {k: [] for k in cams}
+    for ch in RrdReader(str(rrd)).store().stream():
+        for k in cams:
+            if ch.entity_path == f"/camera_{k}/image" and not ch.is_static:
+                rb = ch.to_record_batch()
+                t = rb.column("mission_time").to_numpy()
+                col = rb.column("EncodedImage:blob").to_pylist()
+                rows[k] += [(t[i], bytes(col[i][0])) for i in range(len(t))]
+    return {k: [b for _, b in sorted(v, key=lambda r: r[0])] for k, v in rows.items()}
+
+
 def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypatch):
     """Images sent in batches of ~2 frames (bounded memory for long video logs, Rerun flushed
     between batches): the recording read back with Rerun's own reader holds every frame's JPEG
-    bytes of the log, byte for byte, in time order; the preload thread's first batch is the one
-    the recording would read itself."""
-    from rerun.chunk import RrdReader
+    bytes of the log, byte for byte, in time order; so does the recording the preload thread
+    begins with the vision's jobs while the workers run."""
     from scenarios.replay import rerun_view
     from scenarios.replay.pipeline import _Preload, replay
     from scenarios.replay.inputs import load_inputs
@@ -328,22 +344,22 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
     cams = rr.cam_numbers
     batches = rerun_view.image_batches(rr.inputs, rr.frames, cams)
     assert len(batches) == 5 and sum(len(b) for b in batches) == len(rr.frames) == 10
-    blobs = {k: [] for k in cams}
-    for ch in RrdReader(str(rrd)).store().stream():
-        for k in cams:
-            if ch.entity_path == f"/camera_{k}/image" and not ch.is_static:
-                rb = ch.to_record_batch()
-                order = np.argsort(rb.column("mission_time").to_numpy())
-                col = rb.column("EncodedImage:blob").to_pylist()
-                blobs[k] += [bytes(col[i][0]) for i in order]
+    want = {}
     for k in cams:
         st = inp.cameras[k].images
-        t = sorted(f.t_ns for f in rr.frames if f.k == k)
-        assert blobs[k] == [st[int(np.searchsorted(st.t_ns, x))] for x in t], k
-    pre = _Preload(rr.inputs, rr.frames, cams, None)
+        want[k] = [st[int(np.searchsorted(st.t_ns, x))] for x in sorted(f.t_ns for f in rr.frames if f.k == k)]
+    assert _recorded_images(rrd, cams) == want
+    jobs = [types.SimpleNamespace(k=f.k, t_ns=f.t_ns) for f in rr.frames]
+    pre = _Preload(jobs, begin=lambda j: rerun_view.begin(rr.inputs, j, cams, tmp_path / "p.rrd"))
     pre.start()
-    got, want = pre.images(rr.frames), rerun_view.read_blobs(rr.inputs, batches[0], cams)
-    assert got.keys() == want.keys() == set(cams)
-    for k in cams:
-        assert got[k].as_arrow_array().equals(want[k].as_arrow_array())
-        assert len(got[k].as_arrow_array()) == sum(f.k == k for f in batches[0])
+    rec = pre.recording(rr.frames)
+    assert rec is not None and pre.rec is None
+    rec.rec.flush()
+    rec.rec.disconnect()
+    assert _recorded_images(rec.tmp, cams) == want
+    # other frames than the jobs': the begun recording is abandoned (its file deleted), None returned
+    pre = _Preload(jobs, begin=lambda j: rerun_view.begin(rr.inputs, j, cams, tmp_path / "q.rrd"))
+    pre.start()
+    assert pre.recording(rr.frames[1:]) is None
+    assert not list(tmp_path.glob(".q.rrd*"))
+

@@ -318,6 +318,9 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     rrd = None if not want_rrd or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
+    track = gps.x_e if gps is not None and len(gps.t_ns) else None   # aims the recording's 3D view
+    if want_rrd:
+        from scenarios.replay import rerun_view as RV
     try:
         if mode == "images":
             with prog.timed("init"):
@@ -327,10 +330,12 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 pre = _triad_pass(plan, inp, cam_numbers, opt, imu) if opt.init in (None, "triad") else None
                 init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, cam_numbers, mode, msgs)
                 _attach_priors(plan, imu, init, inp, cam_numbers)
-            # Rerun's import, the recording's JPEG bytes and the filter's kernels, loaded in a thread
-            # while the workers run
-            preload = _Preload(inp, plan.jobs, cam_numbers, opt.rrd_image_rate_hz, record=want_rrd,
-                               warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc, opt.smoother))
+            # the recording begun with the images, and the filter's kernels loaded, in a thread while
+            # the workers run
+            preload = _Preload(plan.jobs, begin=(lambda jobs: RV.begin(
+                inp, jobs, cam_numbers, rrd, spawn=opt.spawn, track=track, timings=rerun_parts,
+                image_rate_hz=opt.rrd_image_rate_hz)) if want_rrd else None,
+                warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc, opt.smoother))
             with prog.timed("vision", block=False):  # the frames are its steps
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
                                               on_pool_start=preload.start if preload else None)
@@ -346,14 +351,15 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
         gc.freeze()   # the vision results likewise
         if want_rrd:
-            # the recording's images first: Rerun encodes and writes them (most of its bytes) in its
-            # own threads while the filter and the smoother run here (on the otherwise idle core)
+            # the images (begun while the workers ran, else now) and the overlays: Rerun encodes and
+            # writes them (most of its bytes) in its own threads while the filter and the smoother
+            # run here
             with prog.timed("rerun", block=False):
-                from scenarios.replay import rerun_view as RV
-                track = gps.x_e if gps is not None and len(gps.t_ns) else None
-                recording = RV.begin(inp, frames, cam_numbers, rrd, spawn=opt.spawn, track=track,
-                                     timings=rerun_parts, image_rate_hz=opt.rrd_image_rate_hz,
-                                     blobs=preload.images(frames) if preload else None)
+                recording = preload.recording(frames) if preload else None
+                if recording is None:
+                    recording = RV.begin(inp, frames, cam_numbers, rrd, spawn=opt.spawn, track=track,
+                                         timings=rerun_parts, image_rate_hz=opt.rrd_image_rate_hz)
+                RV.overlays(recording, inp, frames, cam_numbers)
         if preload is not None:
             preload.join()     # its warm-up run of the filter has ended
         with prog.timed("filter"):
@@ -373,6 +379,8 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     except KeyboardInterrupt:
         prog.close()
         _abandon_recording(recording)
+        if preload is not None:
+            preload.abandon()
         stage = prog.current
         note = ""
         if stage == "vision":
@@ -386,6 +394,8 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     except BaseException:
         prog.close()
         _abandon_recording(recording)
+        if preload is not None:
+            preload.abandon()
         w.discard()
         raise
     if recording is not None:
@@ -489,21 +499,20 @@ def _abandon_recording(recording) -> None:
 
 
 class _Preload:
-    """While the vision workers run, this process only waits: a daemon thread imports Rerun (about
-    1 s) and reads the JPEG bytes of the first batch of frames the recording will show
-    (:func:`.rerun_view.image_batches`: all of the demo's; the log's chunks decompressed once
-    more, ~0.2 s) as the Arrow arrays the recording sends (``record``), then calls ``warm`` (the
-    filter's numba kernels loaded by a short run, :func:`_warm_filter`). :meth:`start` is called
-    after the workers are forked, so that no fork happens while the thread holds a lock; until then
-    this process's image streams are not touched by the thread (single-process vision reads them
-    itself). :meth:`join` before the filter runs."""
+    """While the vision workers run, this process only waits: a daemon thread begins the Rerun
+    recording with the camera images of the frames to process (``begin(jobs)``:
+    :func:`.rerun_view.begin`: Rerun's import, about 1 s in a new process, the JPEG bytes read
+    from the log and handed to Rerun, whose own threads encode and write them), then calls ``warm``
+    (the filter's numba kernels loaded by a short run, :func:`_warm_filter`). :meth:`start` is
+    called after the workers are forked, so that no fork happens while the thread holds a lock;
+    until then this process's image streams are not touched by the thread (single-process vision
+    reads them itself). :meth:`recording` (or :meth:`join`) before the filter runs;
+    :meth:`abandon` when the replay stops early."""
 
-    def __init__(self, inp, jobs, cam_numbers, image_rate_hz, record: bool = True, warm=None):
-        self.inp, self.cam_numbers, self.rate = inp, cam_numbers, image_rate_hz
-        self.jobs = jobs
-        self.record, self.warm = record, warm
+    def __init__(self, jobs, begin=None, warm=None):
+        self.jobs, self.begin, self.warm = jobs, begin, warm
         self.thread = None
-        self.blobs = None
+        self.rec = None
 
     def start(self) -> None:
         import threading
@@ -511,8 +520,11 @@ class _Preload:
         self.thread.start()
 
     def _run(self) -> None:
-        if self.record:
-            self._read()
+        if self.begin is not None:
+            try:
+                self.rec = self.begin(self.jobs)
+            except Exception:  # noqa: BLE001 - the Rerun stage begins the recording again and reports the error
+                self.rec = None
         if self.warm is not None:
             try:
                 self.warm()
@@ -523,27 +535,22 @@ class _Preload:
         if self.thread is not None:
             self.thread.join()
 
-    def _read(self) -> None:
-        try:
-            import importlib
-            importlib.import_module("rerun.blueprint")  # imports rerun too
-            importlib.import_module("pandas")           # pyarrow imports it at rerun's first conversion
-            from scenarios.replay.rerun_view import image_batches, read_blobs, shown_frames
-            first = image_batches(self.inp, shown_frames(self.jobs, self.cam_numbers, self.rate), self.cam_numbers)[:1]
-            if first:
-                self.blobs = read_blobs(self.inp, first[0], self.cam_numbers)
-        except Exception:  # noqa: BLE001 - the Rerun stage imports and reads again and reports the error
-            self.blobs = None
-
-    def images(self, frames) -> dict | None:
-        """The pre-read first image batch if ``frames`` are the jobs' frames (the batches are a
-        function of the frames' cameras and times), else None."""
-        if self.thread is None:
-            return None
+    def recording(self, frames):
+        """The recording begun with the jobs' images, handed over, if ``frames`` are the jobs'
+        frames (the images are a function of the frames' cameras and times); else None (none
+        begun, its begin failed, or other frames: the caller begins the recording itself)."""
         self.join()
-        blobs, self.blobs = self.blobs, None     # handed over: not kept alive here
-        same = sorted((f.k, f.t_ns) for f in frames) == sorted((j.k, j.t_ns) for j in self.jobs)
-        return blobs if same else None
+        rec, self.rec = self.rec, None
+        if rec is not None and sorted((f.k, f.t_ns) for f in frames) != sorted((j.k, j.t_ns) for j in self.jobs):
+            _abandon_recording(rec)
+            rec = None
+        return rec
+
+    def abandon(self) -> None:
+        """Wait for the thread and delete the recording it began (the replay stops early)."""
+        self.join()
+        rec, self.rec = self.rec, None
+        _abandon_recording(rec)
 
 
 def _warm_filter(imu, init, tuning, gps, vectors, R_bc, smoother: bool) -> None:

@@ -99,20 +99,21 @@ class Recording:
     path: Path | None   #: final .rrd (None: viewer only)
     tmp: Path | None    #: the file being written, renamed to ``path`` by :func:`finish`
     timings: dict
+    image_rate_hz: float | None = None   #: the images' thinning (:func:`shown_frames`)
 
 
 def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, track=None,
-          timings: dict | None = None, image_rate_hz: float | None = None, blobs: dict | None = None) -> Recording:
+          timings: dict | None = None, image_rate_hz: float | None = None) -> Recording:
     """Open the recording (``path`` .rrd, written to a temporary name until :func:`finish`, and/or
-    the viewer) and send the camera images with the front end's overlays: most of the recording's
-    bytes, which Rerun encodes and writes in its own threads while the caller runs the filter and
-    the smoother. ``track``: positions (N, 3) known before the filter (GPS) to aim the 3D view.
-    ``image_rate_hz``: the camera images and their overlays at most this many per second and
-    camera (the first frame of each interval; the vectors and time series keep every frame): a 30
-    frames/s video otherwise copies ~9 MB of JPEG per second of flight into the recording.
-    ``timings`` (optional dict) receives the seconds per part (static, images, scene, series, flush).
-    ``blobs``: the first image batch as :func:`read_blobs` gives it, when read beforehand (e.g.
-    while the vision workers run); else it is read here."""
+    the viewer) and send the camera images of ``frames`` (anything with ``k`` and ``t_ns``: the
+    vision's frames, before or after the front end ran): most of the recording's bytes, which
+    Rerun encodes and writes in its own threads while the caller goes on (the replay begins the
+    recording in a thread while the vision workers run). ``track``: positions (N, 3) known before
+    the filter (GPS) to aim the 3D view. ``image_rate_hz``: the camera images (and their
+    :func:`overlays`) at most this many per second and camera (the first frame of each interval;
+    the vectors and time series keep every frame): a 30 frames/s video otherwise copies ~9 MB of
+    JPEG per second of flight into the recording. ``timings`` (optional dict) receives the seconds
+    per part (static, images, overlays, scene, series, flush)."""
     import time
     import rerun as rr
     tm = timings if timings is not None else {}
@@ -125,12 +126,26 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
         rec.save(str(tmp), default_blueprint=blueprint(cam_numbers, track))
     if spawn:
         rec.spawn(default_blueprint=blueprint(cam_numbers, track))
+    r = Recording(rec, None if path is None else Path(path), tmp, tm, image_rate_hz)
     tm["static"] = time.perf_counter() - t
     t = time.perf_counter()
-    shown = shown_frames(frames, cam_numbers, image_rate_hz)
-    _images(rec, rr, inp, shown, cam_numbers, blobs)
+    try:
+        _images(rec, rr, inp, shown_frames(frames, cam_numbers, image_rate_hz), cam_numbers)
+    except BaseException:
+        abandon(r)
+        raise
     tm["images"] = time.perf_counter() - t
-    return Recording(rec, None if path is None else Path(path), tmp, tm)
+    return r
+
+
+def overlays(r: Recording, inp, frames, cam_numbers) -> None:
+    """The front end's overlays (``frames``: vision_worker.FrameOutput) on the images
+    :func:`begin` sent."""
+    import time
+    import rerun as rr
+    t = time.perf_counter()
+    _overlays(r.rec, rr, inp, shown_frames(frames, cam_numbers, r.image_rate_hz), cam_numbers)
+    r.timings["overlays"] = time.perf_counter() - t
 
 
 def finish(r: Recording, inp, res, smooth, vectors, cam_numbers, frames) -> Path | None:
@@ -298,12 +313,10 @@ def read_blobs(inp, frames, cam_numbers) -> dict:
     return {k: _blob_batch(v) for k, v in read_images(inp, frames, cam_numbers).items() if v}
 
 
-def _images(rec, rr, inp, frames, cam_numbers, blobs=None):
-    """Each frame as its JPEG bytes (EncodedImage) with the front end's overlay: the images in
-    :func:`image_batches` (one column send per camera and batch; ``blobs``: the first batch's
-    :func:`read_blobs` if already read), waiting for Rerun to write each batch before the next is
-    read when there are several; :data:`IMAGES_PER_SEND` frames per send); the overlays one column send per entity (a frame without an
-    overlay part shows none: empty row)."""
+def _images(rec, rr, inp, frames, cam_numbers):
+    """Each frame as its JPEG bytes (EncodedImage): the frames in :func:`image_batches`, read
+    batch by batch and sent :data:`IMAGES_PER_SEND` at a time, waiting for Rerun to write each
+    batch before the next is read when there are several."""
     from rerun.encodings import BlobBatch
     batches = image_batches(inp, frames, cam_numbers)
     for k in cam_numbers:
@@ -312,7 +325,7 @@ def _images(rec, rr, inp, frames, cam_numbers, blobs=None):
     for n, batch in enumerate(batches):
         if n:
             rec.flush()    # bounded memory: the previous batch is written before this one is read
-        got = blobs if n == 0 and blobs is not None else read_blobs(inp, batch, cam_numbers)
+        got = read_blobs(inp, batch, cam_numbers)
         for k in cam_numbers:
             t = np.array(sorted(f.t_ns for f in batch if f.k == k), np.int64)
             arr = got[k].as_arrow_array() if t.size else None
@@ -321,6 +334,11 @@ def _images(rec, rr, inp, frames, cam_numbers, blobs=None):
                                  columns=rr.EncodedImage.columns(
                                      blob=BlobBatch(arr.slice(s, min(IMAGES_PER_SEND, t.size - s)))))
         del got
+
+
+def _overlays(rec, rr, inp, frames, cam_numbers):
+    """The overlays of the frames, one column send per entity (a frame without an overlay part
+    shows none: empty row)."""
     for k in cam_numbers:
         fr = sorted((f for f in frames if f.k == k), key=lambda f: f.t_ns)
         if not fr:
