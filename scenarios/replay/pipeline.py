@@ -21,10 +21,11 @@ Stages (timed; ``ReplayResult.timings``):
 4. **filter**: :func:`nav.navigator.run` (one call over the window; it cannot be resumed).
 5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
 6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
-7. **rerun**: the recording (:mod:`.rerun_view`), in two parts: begun right after the vision with
-   the camera images and overlays (their JPEG bytes read by a thread while the workers run), which
-   Rerun's own threads encode and write while the filter and the smoother run here; finished after
-   writing with the solution (3D scene, time series). Its time is the sum of both parts.
+7. **rerun**: the recording (:mod:`.rerun_view`), in three parts: begun with the camera images by
+   a thread while the vision workers run (:class:`_Preload`; Rerun's own threads encode and write
+   them), the front end's overlays right after the vision (encoded while the filter and the
+   smoother run here), finished after writing with the solution (3D scene, time series). Its time
+   is that of the last two parts (the first is hidden in the vision's).
 
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
 (``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that

@@ -6,9 +6,9 @@ import math
 from collections import Counter
 
 import numpy as np
-from scipy.stats import chi2
 
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
+from nav.schmidt import chi2_gate
 from scenarios.replay.solution_log import source_name
 
 NS = 1_000_000_000
@@ -42,7 +42,7 @@ def summarize(rr) -> dict:
     for kind, dof in DOF.items():
         v = res.nis(kind)
         if v.size:
-            lo, hi = chi2.ppf([0.025, 0.975], dof)
+            lo, hi = chi2_gate(dof, 0.025), chi2_gate(dof, 0.975)
             nis[kind] = {"n": int(v.size), "mean": float(v.mean()), "dof": dof,
                          "inside95": float(np.mean((v > lo) & (v < hi)))}
     out["nis"] = nis
