@@ -350,7 +350,7 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
         want[k] = [st[int(np.searchsorted(st.t_ns, x))] for x in sorted(f.t_ns for f in rr.frames if f.k == k)]
     assert _recorded_images(rrd, cams) == want
     jobs = [types.SimpleNamespace(k=f.k, t_ns=f.t_ns) for f in rr.frames]
-    pre = _Preload(jobs, begin=lambda j: rerun_view.begin(rr.inputs, j, cams, tmp_path / "p.rrd"))
+    pre = _Preload(jobs, begin=lambda j, stop: rerun_view.begin(rr.inputs, j, cams, tmp_path / "p.rrd", stop=stop))
     pre.start()
     rec = pre.recording(rr.frames)
     assert rec is not None and pre.rec is None
@@ -358,8 +358,17 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
     rec.rec.disconnect()
     assert _recorded_images(rec.tmp, cams) == want
     # other frames than the jobs': the begun recording is abandoned (its file deleted), None returned
-    pre = _Preload(jobs, begin=lambda j: rerun_view.begin(rr.inputs, j, cams, tmp_path / "q.rrd"))
+    pre = _Preload(jobs, begin=lambda j, stop: rerun_view.begin(rr.inputs, j, cams, tmp_path / "q.rrd", stop=stop))
     pre.start()
     assert pre.recording(rr.frames[1:]) is None
     assert not list(tmp_path.glob(".q.rrd*"))
+    # stopped (the replay interrupted): begin stops sending, the file is deleted, no recording
+    pre = _Preload(jobs, begin=lambda j, stop: rerun_view.begin(rr.inputs, j, cams, tmp_path / "s.rrd", stop=stop))
+    pre.stop.set()
+    pre.start()
+    pre.abandon()
+    assert pre.rec is None and not list(tmp_path.glob(".s.rrd*"))
+    with pytest.raises(rerun_view.RecordingStopped):
+        rerun_view.begin(rr.inputs, jobs, cams, tmp_path / "t.rrd", stop=pre.stop)
+    assert not list(tmp_path.glob(".t.rrd*")) and not (tmp_path / "t.rrd").exists()
 

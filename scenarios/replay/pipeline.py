@@ -333,9 +333,9 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 _attach_priors(plan, imu, init, inp, cam_numbers)
             # the recording begun with the images, and the filter's kernels loaded, in a thread while
             # the workers run
-            preload = _Preload(plan.jobs, begin=(lambda jobs: RV.begin(
+            preload = _Preload(plan.jobs, begin=(lambda jobs, stop: RV.begin(
                 inp, jobs, cam_numbers, rrd, spawn=opt.spawn, track=track, timings=rerun_parts,
-                image_rate_hz=opt.rrd_image_rate_hz)) if want_rrd else None,
+                image_rate_hz=opt.rrd_image_rate_hz, stop=stop)) if want_rrd else None,
                 warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc, opt.smoother))
             with prog.timed("vision", block=False):  # the frames are its steps
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
@@ -501,9 +501,10 @@ def _abandon_recording(recording) -> None:
 
 class _Preload:
     """While the vision workers run, this process only waits: a daemon thread begins the Rerun
-    recording with the camera images of the frames to process (``begin(jobs)``:
-    :func:`.rerun_view.begin`: Rerun's import, about 1 s in a new process, the JPEG bytes read
-    from the log and handed to Rerun, whose own threads encode and write them), then calls ``warm``
+    recording with the camera images of the frames to process (``begin(jobs, stop)``:
+    :func:`.rerun_view.begin`: Rerun's and pandas' import, ~0.5 s in a new process, the JPEG bytes
+    read from the log and handed to Rerun, whose own threads encode and write them; it stops within
+    one send once the event ``stop`` is set, see :meth:`abandon`), then calls ``warm``
     (the filter's numba kernels loaded by a short run, :func:`_warm_filter`). :meth:`start` is
     called after the workers are forked, so that no fork happens while the thread holds a lock;
     until then this process's image streams are not touched by the thread (single-process vision
@@ -511,9 +512,11 @@ class _Preload:
     :meth:`abandon` when the replay stops early."""
 
     def __init__(self, jobs, begin=None, warm=None):
+        import threading
         self.jobs, self.begin, self.warm = jobs, begin, warm
         self.thread = None
         self.rec = None
+        self.stop = threading.Event()
 
     def start(self) -> None:
         import threading
@@ -523,10 +526,10 @@ class _Preload:
     def _run(self) -> None:
         if self.begin is not None:
             try:
-                self.rec = self.begin(self.jobs)
+                self.rec = self.begin(self.jobs, self.stop)
             except Exception:  # noqa: BLE001 - the Rerun stage begins the recording again and reports the error
                 self.rec = None
-        if self.warm is not None:
+        if self.warm is not None and not self.stop.is_set():
             try:
                 self.warm()
             except Exception:  # noqa: BLE001 - a warm-up only: the filter itself reports its errors
@@ -548,7 +551,9 @@ class _Preload:
         return rec
 
     def abandon(self) -> None:
-        """Wait for the thread and delete the recording it began (the replay stops early)."""
+        """Stop the thread (the images within one send; an import under way ends first), wait for
+        it and delete the recording it began (the replay stops early)."""
+        self.stop.set()
         self.join()
         rec, self.rec = self.rec, None
         _abandon_recording(rec)

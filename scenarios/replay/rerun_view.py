@@ -102,8 +102,12 @@ class Recording:
     image_rate_hz: float | None = None   #: the images' thinning (:func:`shown_frames`)
 
 
+class RecordingStopped(Exception):
+    """:func:`begin` was told to stop (its ``stop`` event set) while sending the images."""
+
+
 def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, track=None,
-          timings: dict | None = None, image_rate_hz: float | None = None) -> Recording:
+          timings: dict | None = None, image_rate_hz: float | None = None, stop=None) -> Recording:
     """Open the recording (``path`` .rrd, written to a temporary name until :func:`finish`, and/or
     the viewer) and send the camera images of ``frames`` (anything with ``k`` and ``t_ns``: the
     vision's frames, before or after the front end ran): most of the recording's bytes, which
@@ -113,7 +117,9 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     :func:`overlays`) at most this many per second and camera (the first frame of each interval;
     the vectors and time series keep every frame): a 30 frames/s video otherwise copies ~9 MB of
     JPEG per second of flight into the recording. ``timings`` (optional dict) receives the seconds
-    per part (static, images, overlays, scene, series, flush)."""
+    per part (static, images, overlays, scene, series, flush). ``stop`` (a ``threading.Event``):
+    when set, the images stop within one send, the recording is abandoned and
+    :class:`RecordingStopped` raised (the replay was interrupted meanwhile)."""
     import time
     import rerun as rr
     tm = timings if timings is not None else {}
@@ -130,7 +136,7 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     tm["static"] = time.perf_counter() - t
     t = time.perf_counter()
     try:
-        _images(rec, rr, inp, shown_frames(frames, cam_numbers, image_rate_hz), cam_numbers)
+        _images(rec, rr, inp, shown_frames(frames, cam_numbers, image_rate_hz), cam_numbers, stop)
     except BaseException:
         abandon(r)
         raise
@@ -313,10 +319,11 @@ def read_blobs(inp, frames, cam_numbers) -> dict:
     return {k: _blob_batch(v) for k, v in read_images(inp, frames, cam_numbers).items() if v}
 
 
-def _images(rec, rr, inp, frames, cam_numbers):
+def _images(rec, rr, inp, frames, cam_numbers, stop=None):
     """Each frame as its JPEG bytes (EncodedImage): the frames in :func:`image_batches`, read
     batch by batch and sent :data:`IMAGES_PER_SEND` at a time, waiting for Rerun to write each
-    batch before the next is read when there are several."""
+    batch before the next is read when there are several; :class:`RecordingStopped` once ``stop``
+    is set."""
     from rerun.encodings import BlobBatch
     batches = image_batches(inp, frames, cam_numbers)
     for k in cam_numbers:
@@ -330,6 +337,8 @@ def _images(rec, rr, inp, frames, cam_numbers):
             t = np.array(sorted(f.t_ns for f in batch if f.k == k), np.int64)
             arr = got[k].as_arrow_array() if t.size else None
             for s in range(0, t.size, IMAGES_PER_SEND):
+                if stop is not None and stop.is_set():
+                    raise RecordingStopped
                 rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t[s:s + IMAGES_PER_SEND]),
                                  columns=rr.EncodedImage.columns(
                                      blob=BlobBatch(arr.slice(s, min(IMAGES_PER_SEND, t.size - s)))))
