@@ -40,6 +40,7 @@ import gc
 import logging
 import math
 import os
+import threading
 import time
 import tomllib
 from contextlib import contextmanager
@@ -329,7 +330,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                 # an attitude first (TRIAD on a sparse pass without attitude prior, or given/truth),
                 # then every frame with the free-inertial attitude as the vision's prior
                 pre = _triad_pass(plan, inp, cam_numbers, opt, imu) if opt.init in (None, "triad") else None
-                init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, cam_numbers, mode, msgs)
+                init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, R_bc, mode, msgs)
                 _attach_priors(plan, imu, init, inp, cam_numbers)
             # the recording begun with the images, and the filter's kernels loaded, in a thread while
             # the workers run
@@ -349,7 +350,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             if mode == "vectors":
                 vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
             with prog.timed("init"):
-                init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs)
+                init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, R_bc, mode, msgs)
         gc.freeze()   # the vision results likewise
         if want_rrd:
             # the images (begun while the workers ran, else now) and the overlays: Rerun encodes and
@@ -379,9 +380,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
             w.close()
     except KeyboardInterrupt:
         prog.close()
-        _abandon_recording(recording)
-        if preload is not None:
-            preload.abandon()
+        _abandon_recording(recording, preload)
         stage = prog.current
         note = ""
         if stage == "vision":
@@ -394,9 +393,7 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
         raise
     except BaseException:
         prog.close()
-        _abandon_recording(recording)
-        if preload is not None:
-            preload.abandon()
+        _abandon_recording(recording, preload)
         w.discard()
         raise
     if recording is not None:
@@ -412,13 +409,12 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
                         cpu, rerun_parts)
 
 
-def _initialise(opt, inp, imu, gps, vectors, cam_numbers, mode, msgs):
+def _initialise(opt, inp, imu, gps, vectors, R_bc, mode, msgs):
     """The initial state (003 §7.4): truth, a given state, or TRIAD + back-propagation; on the image
     path the Earth vectors are corrected to the geocentric nadir with the initial attitude (and TRIAD
     repeated on the corrected vectors). Returns (init, TRIAD result or None, method, vectors)."""
     tri_init = None
     init_method = opt.init
-    R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
     has_pair = vectors is not None and {"hor", "sun"} <= set(np.unique(vectors.target))
     if init_method is None:
         if has_pair and gps is not None:
@@ -492,8 +488,11 @@ def _correct_earth(vectors, imu, init, inp, R_bc):
     return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
 
 
-def _abandon_recording(recording) -> None:
-    """Close an unfinished Rerun recording (if one was begun) and delete its temporary file."""
+def _abandon_recording(recording, preload=None) -> None:
+    """Close an unfinished Rerun recording (if one was begun) and delete its temporary file; with
+    ``preload``, also stop its thread and delete the recording it began (:meth:`_Preload.abandon`)."""
+    if preload is not None:
+        preload.abandon()
     if recording is not None:
         from scenarios.replay.rerun_view import abandon
         abandon(recording)
@@ -512,14 +511,12 @@ class _Preload:
     :meth:`abandon` when the replay stops early."""
 
     def __init__(self, jobs, begin=None, warm=None):
-        import threading
         self.jobs, self.begin, self.warm = jobs, begin, warm
         self.thread = None
         self.rec = None
         self.stop = threading.Event()
 
     def start(self) -> None:
-        import threading
         self.thread = threading.Thread(target=self._run, name="preload-rerun", daemon=True)
         self.thread.start()
 
