@@ -12,6 +12,8 @@ The scalar inputs travel in one float64 array ``P`` indexed by the constants bel
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -80,14 +82,20 @@ def _airmass(mu, chmax):
 @njit(cache=True, inline="always")
 def _sun_transmission_m(mu_s, h, P):
     """Air mass of the sunlight reaching height ``h`` with solar elevation sine ``mu_s``;
-    negative when the point is in the Earth's shadow."""
+    negative when the point is in the Earth's shadow.
+
+    Sun below the horizon (twilight): the sunray passed its lowest point, at ``hs = h - R mu^2/2``,
+    a distance ``x_P = R |mu|`` before the point; along it the height is ``hs + x^2 / 2R``, so
+    its air mass is ``C exp(-hs/H) (1 + erf(x_P / sqrt(2 R H)))`` with ``C = sqrt(pi R / 2H)``:
+    the grazing path's Sun-side half plus the part up to the point (continuous at mu = 0 with the
+    Chapman stand-in above, 2C exp(-hs/H) deep in twilight)."""
     H = P[H_SCALE]
     if mu_s >= 0.0:
         return _airmass(mu_s, P[CH_MAX]) * np.exp(-h / H)
     hs = h - 0.5 * P[R_MEAN] * mu_s * mu_s  # height of the grazing sunray's tangent point
     if hs < 0.0:
         return -1.0
-    return 2.0 * P[CH_MAX] * np.exp(-hs / H)
+    return P[CH_MAX] * np.exp(-hs / H) * (1.0 + math.erf(-mu_s * P[CH_MAX] / math.sqrt(math.pi)))
 
 
 @njit(cache=True, inline="always")

@@ -32,7 +32,7 @@ _TARGET_KEYS = {"enabled", "min_pixels", "max_candidates", "score_rays", "fit_ra
                 "alpha_min_deg", "alpha_max_deg", "side_check_px", "side_check_min",
                 "side_check_rays", "edge_offset_px", "direct_outlier_fraction", "compete_fraction", "gate_deg", "curvature_tol_deg",
                 "limb_fraction", "limb_channel", "limb_height_m", "limb_height_sigma_m",
-                "limb_min_sun_elev_deg", "limb_min_used", "limb_sun_path", "limb_scale_height_m",
+                "limb_min_sun_elev_deg", "limb_min_used", "limb_sun_path", "limb_scale_height_m", "limb_profile_below_deg",
                 "limb_sun_path_sigma", "limb_twilight_el_deg", "limb_twilight_dh_m",
                 "limb_twilight_sigma_m", "limb_calibrate_below", "limb_calibrate_min_points",
                 "limb_calibrate_sigma_m"}

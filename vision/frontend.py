@@ -74,7 +74,8 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
 from vision.covariance import direction_covariance, tangent_basis
-from vision.limb import LimbEdgeConfig, fraction_height_shift, limb_edge_points, sun_elevation
+from vision.limb import (LimbEdgeConfig, fraction_height_shift, limb_edge_points, profile_height_shift,
+                         tangent_height_sun)
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
                           direction_and_radius, mirrored_direction, nadir_from_horizon)
@@ -144,7 +145,7 @@ class TargetConfig:
     limb_height_m, limb_height_sigma_m : tangent height of the fraction-of-peak crossing [m] and
         its frame-to-frame and along-the-limb spread (docs/vision.md).
     limb_min_sun_elev_deg : limb points with the Sun lower than this at the tangent point are not
-        used (the lower limb is dimmed by the sunlight's own path, `vision.limb.sun_elevation`).
+        used (the lower limb is dimmed by the sunlight's own path, `vision.limb.tangent_height_sun`).
     limb_min_used : the fraction-of-peak edge is used only when at least this fraction of the
         winner's inliers give a usable profile (not clipped, Sun high enough); else the threshold
         edge with ``atmosphere_m`` stands.
@@ -153,6 +154,10 @@ class TargetConfig:
         sunlight's own path through the lower atmosphere lifts the limb maximum) and turn its ray
         by the shift, so one cone angle (``limb_height_m`` = the overhead-Sun height) fits all.
     limb_scale_height_m : H of that model [m].
+    limb_profile_below_deg : points with the Sun lower than this at the tangent point take the
+        Sun elevation's change down their profile into account
+        (`vision.limb.profile_height_shift`: up to kilometres near the terminator, < 50 m above
+        15 deg, where eq. (5) alone is used: it costs ~4 us per point).
     limb_sun_path_sigma : model error as a fraction of the frame's mean shift (covariance term).
     limb_twilight_el_deg, limb_twilight_dh_m : measured correction [m] added to the model at these
         Sun elevations [deg] (linear interpolation, 0 outside): near the terminator the model is
@@ -203,6 +208,7 @@ class TargetConfig:
     limb_min_used: float = 0.1
     limb_sun_path: bool = False
     limb_scale_height_m: float = 8000.0
+    limb_profile_below_deg: float = 15.0
     limb_sun_path_sigma: float = 0.2
     limb_twilight_el_deg: tuple = ()
     limb_twilight_dh_m: tuple = ()
@@ -258,6 +264,8 @@ class TargetConfig:
             bad("limb_sun_path", "true or false")
         if not (math.isfinite(self.limb_scale_height_m) and 1e3 <= self.limb_scale_height_m <= 20e3):
             bad("limb_scale_height_m", "a scale height of 1..20 km (Earth: 7-8.5 km)")
+        if not (math.isfinite(self.limb_profile_below_deg) and -10.0 <= self.limb_profile_below_deg <= 90.0):
+            bad("limb_profile_below_deg", "an elevation in [-10, 90] deg")
         if not (math.isfinite(self.limb_sun_path_sigma) and self.limb_sun_path_sigma >= 0):
             bad("limb_sun_path_sigma", "a finite fraction >= 0 of the Sun-path shift")
         kn, dv = tuple(self.limb_twilight_el_deg), tuple(self.limb_twilight_dh_m)
@@ -305,9 +313,7 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
         min_pixels=100, max_residual=4e-6, R_px2=1.0, L_px=300.0,
         atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
         score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0,
-        limb_min_sun_elev_deg=-3.0, limb_sun_path=True,
-        limb_twilight_el_deg=(-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0),
-        limb_twilight_dh_m=(7400.0, 6900.0, 5900.0, 4700.0, 3300.0, 1500.0, 900.0, 0.0),
+        limb_min_sun_elev_deg=-3.0, limb_sun_path=True, limb_sun_path_sigma=0.05,
         limb_calibrate_below=0.1, limb_calibrate_sigma_m=3000.0)
     sun = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
@@ -930,6 +936,11 @@ def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) 
     return rotvec_to_matrix(axis * (math.atan2(s, c) / s)) @ np.asarray(R_ec, dtype=float)
 
 
+#: angle [rad] a limb ray is turned towards the body to find the Sun elevation's change down its
+#: profile (~2 km of tangent height from a few hundred km up: the change is linear over it)
+_PROFILE_STEP_RAD = 1e-3
+
+
 def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit, J=None):
     """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels and the refit
     with its height; None when too few limb points are usable (the caller keeps the threshold
@@ -946,10 +957,24 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True)
     el = None
     if np.any(ok):
-        el = sun_elevation(rn[ok] @ tilt_corrected_attitude(R_ec, e_c, x_e).T, x_e, sun_e)
-        keep = el >= math.radians(tc.limb_min_sun_elev_deg)
+        R_t = tilt_corrected_attitude(R_ec, e_c, x_e)
+        rays_e = rn[ok] @ R_t.T
+        h_t, mu = tangent_height_sun(rays_e, x_e, sun_e)
+        keep = mu >= math.sin(math.radians(tc.limb_min_sun_elev_deg))
+        if tc.limb_sun_path:
+            dh = fraction_height_shift(mu, tc.limb_fraction, tc.limb_scale_height_m)
+            low = keep & (mu < math.sin(math.radians(tc.limb_profile_below_deg)))
+            if np.any(low):
+                # the Sun elevation's change down each profile (vision.limb.profile_height_shift):
+                # mu at the tangent point of the ray turned towards the body by _PROFILE_STEP_RAD
+                turned = _turn_towards(rays_e[low], R_t @ e_c, np.full(int(low.sum()), _PROFILE_STEP_RAD))
+                h_b, mu_b = tangent_height_sun(turned, x_e, sun_e)
+                dh[low] = profile_height_shift(mu[low], (mu_b - mu[low]) / (h_b - h_t[low]), tc.limb_fraction,
+                                               tc.limb_scale_height_m, tc.limb_height_m, lc.min_drop)
+                keep &= np.isfinite(dh)      # NaN: the profile lies in the Earth's shadow
+            dh = dh[keep]
         ok[ok] = keep
-        el = el[keep]
+        el = np.arcsin(mu[keep])
     n_ok = int(ok.sum())
     m = uv.shape[0]
     used = n_ok / max(m, 1)
@@ -957,10 +982,10 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
                  and n_ok >= tc.limb_calibrate_min_points and J is not None)
     if not calibrate and n_ok < max(20, tc.limb_min_used * m):
         return None
-    dh = np.zeros(n_ok)
+    if not (tc.limb_sun_path and n_ok):
+        dh = np.zeros(n_ok)
     twi = 0.0
     if tc.limb_sun_path and n_ok:
-        dh = fraction_height_shift(np.sin(el), tc.limb_fraction, tc.limb_scale_height_m)
         if len(tc.limb_twilight_el_deg):
             kn = np.radians(np.asarray(tc.limb_twilight_el_deg, dtype=float))
             dh = dh + np.interp(el, kn, np.asarray(tc.limb_twilight_dh_m, dtype=float), left=0.0, right=0.0)
@@ -969,10 +994,7 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
         return _calibrated_threshold_refit(tc, model_l, uv, rays_c, J, pa, e_c, rn[ok], ok, dh, used)
     rays2, J2 = rn[ok], Jn[ok]
     if tc.limb_sun_path:
-        delta = dh * model_l.alpha_rate                       # [rad], towards the body
-        t = e_c[None, :] - (rays2 @ e_c)[:, None] * rays2
-        t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
-        rays2 = np.cos(delta)[:, None] * rays2 + np.sin(delta)[:, None] * t
+        rays2 = _turn_towards(rays2, e_c, dh * model_l.alpha_rate)
     H2 = model_l.to_fit(rays2)
     e0 = model_l.M @ e_c
     fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))

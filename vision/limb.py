@@ -44,7 +44,8 @@ point, Ch the Chapman function), so (1) is really
 
     B(h) = E P T_0 (1 - exp(-u)) exp(-c u),   u = tau m(h),   c = m_s / m                 (4)
 
-with c independent of h (`sun_path_ratio`; twilight: ``m_s = 2 C exp(-(h - R mu_s^2/2)/H)``).
+with c independent of h (`sun_path_ratio`; twilight: ``m_s = C exp(-hs/H) (1 + erf(|mu_s|
+sqrt(R/2H)))``, hs = h - R mu_s^2/2 the height of the sunray's lowest point).
 The crossing of ``f max B`` on the space side of the maximum ``u* = ln((1 + c)/c)`` is a number
 ``u_f(c)`` that depends on f and c only, hence
 
@@ -53,9 +54,20 @@ The crossing of ``f max B`` on the space side of the maximum ``u* = ln((1 + c)/c
 (`fraction_height_shift`): exposure, phase function and tau still drop out of the *shift*; only
 H enters. It agrees with the renderer's 1-D limb radiance to < 50 m (tests/test_limb_sun_path.py)
 and with the tangent heights of the fraction-of-peak edge on rendered frames to 0.2-0.7 km for
-Sun elevations of 3..30 deg; below ~3 deg it is 1..7 km low (the Sun elevation changes along the
-line of sight and down the profile near the terminator), which the front end corrects with a
-measured table (`TargetConfig.limb_twilight_*`, docs/vision.md).
+Sun elevations of 3..30 deg; below ~3 deg it was 1..7 km low.
+
+Sun elevation down the profile (twilight)
+-----------------------------------------
+c is not constant along a profile: the profile of one edge pixel runs down through tangent
+points that move along the line of sight (~3 km of ground per km of tangent height), so the Sun
+elevation at the tangent point changes down the profile, ``mu(h) = mu_s + (dmu/dh) (h - h_f)``.
+Near the terminator c changes by ``exp(R mu dmu / H)`` over the profile, which moves its maximum
+and the crossing by kilometres. `profile_height_shift` finds the crossing on (4) with that mu(h)
+and the Earth's shadow by the detector's rules; tau, which then no longer cancels, follows from
+the overhead-Sun height h_f(1) by (5). On rendered twilight frames the tangent heights of the
+crossings then agree with it to 0.1-0.3 km per frame (eq. (5) alone: 1-3.5 km), and the nadir
+RMS of the limb-edge frames fell from 0.110 to 0.048 deg (docs/vision.md). It replaces the
+measured twilight table (`TargetConfig.limb_twilight_*`, now empty by default).
 """
 from __future__ import annotations
 
@@ -65,6 +77,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy.special import erf as _erf
 
 from nav import earth as _earth
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
@@ -406,31 +419,58 @@ def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, r
     return (uv_new, rays_new, ok, J_new) if jacobian else (uv_new, rays_new, ok)
 
 
-def sun_elevation(rays_e: np.ndarray, x_e: np.ndarray, sun_e: np.ndarray) -> np.ndarray:
-    """Elevation [rad] of the Sun above the local horizontal at the tangent point of each ray
-    (rays_e (m, 3) unit rays from x_e, e frame; geodetic vertical of the WGS-84 ellipsoid).
+@numba.njit(cache=True)
+def _tangent_kernel(rays, x, s, a, b, h_out, mu_out):
+    """Per ray: the tangent point in the scaled space ``diag(1, 1, a/b)`` (where the ellipsoid is
+    the sphere of radius a), its height ``(|T'| - a) |T| / |T'|`` (`scenarios.render.ray_ellipsoid`'s
+    h_t: the scaled-sphere height times the local radius over a), and the sine of the Sun elevation
+    above the geodetic horizon there (normal ``(x/a^2, y/a^2, z/b^2)``)."""
+    q = a / b
+    xs0, xs1, xs2 = x[0], x[1], x[2] * q
+    for i in range(rays.shape[0]):
+        r0, r1, r2 = rays[i, 0], rays[i, 1], rays[i, 2] * q
+        rn = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        r0 /= rn
+        r1 /= rn
+        r2 /= rn
+        tc = -(r0 * xs0 + r1 * xs1 + r2 * xs2)
+        p0, p1, p2 = xs0 + tc * r0, xs1 + tc * r1, xs2 + tc * r2      # tangent point, scaled
+        rho = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        T2 = p2 / q                                                # tangent point in e
+        rloc = math.sqrt(p0 * p0 + p1 * p1 + T2 * T2)
+        h_out[i] = (rho - a) * rloc / rho
+        n0, n1, n2 = p0, p1, T2 * q * q                            # (x, y, z a^2/b^2) ~ normal
+        nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        mu_out[i] = min(1.0, max(-1.0, (n0 * s[0] + n1 * s[1] + n2 * s[2]) / nn))
+
+
+def tangent_height_sun(rays_e: np.ndarray, x_e: np.ndarray, sun_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tangent height [m] above the WGS-84 ellipsoid of each ray and the sine ``mu_s`` of the Sun
+    elevation above the local (geodetic) horizon at its tangent point (rays_e (m, 3) unit rays from
+    x_e, e frame; sun_e: the Sun's direction or position in e).
 
     The tangent point is the ray's closest approach to the ellipsoid, found in the scaled space
     ``S = diag(1, 1, a/b)`` where the ellipsoid is the sphere of radius a (`vision.oblate`); the
     vertical there is the ellipsoid normal ``(x/a^2, y/a^2, z/b^2)``. The geocentric vertical
     differs by up to 0.19 deg, which matters near the terminator: the Sun-path factor of
-    `fraction_height_shift` changes by ~R mu / H ~ 800 per unit of mu there (module docstring).
+    `fraction_height_shift` changes by ~R mu / H ~ 800 per unit of mu there (module docstring)."""
+    r = np.ascontiguousarray(rays_e, dtype=float).reshape(-1, 3)
+    s = np.asarray(sun_e, dtype=float)
+    s = s / np.linalg.norm(s)
+    h = np.empty(r.shape[0])
+    mu = np.empty(r.shape[0])
+    _tangent_kernel(r, np.asarray(x_e, dtype=float), s, _EARTH_A, _EARTH_B, h, mu)
+    return h, mu
+
+
+def sun_elevation(rays_e: np.ndarray, x_e: np.ndarray, sun_e: np.ndarray) -> np.ndarray:
+    """Elevation [rad] of the Sun above the local horizontal at the tangent point of each ray
+    (rays_e (m, 3) unit rays from x_e, e frame; geodetic vertical of the WGS-84 ellipsoid):
+    `tangent_height_sun`.
 
     Where the Sun is low the sunlight that reaches the lower limb has crossed the lower
     atmosphere itself: it is attenuated by ``exp(-tau m_s(h))`` (module docstring, eq. (4))."""
-    x = np.asarray(x_e, dtype=float)
-    r = np.asarray(rays_e, dtype=float)
-    s = np.asarray(sun_e, dtype=float)
-    s = s / np.linalg.norm(s)
-    sc = np.array([1.0, 1.0, _EARTH_A / _EARTH_B])
-    xs = x * sc
-    rs = r * sc
-    rs /= np.linalg.norm(rs, axis=1, keepdims=True)
-    tc = -(rs @ xs)
-    T = (xs[None, :] + tc[:, None] * rs) / sc          # tangent point in e
-    nrm = T * np.array([1.0, 1.0, (_EARTH_A / _EARTH_B) ** 2])
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    return np.arcsin(np.clip(nrm @ s, -1.0, 1.0))
+    return np.arcsin(tangent_height_sun(rays_e, x_e, sun_e)[1])
 
 
 def sun_path_ratio(mu_s: np.ndarray, scale_height_m: float = 8000.0,
@@ -442,14 +482,17 @@ def sun_path_ratio(mu_s: np.ndarray, scale_height_m: float = 8000.0,
     half of the path). Sun above the local horizon (mu_s = sin(elevation) >= 0): the Chapman
     function is approximated by ``Ch(mu) = 1 / sqrt(mu^2 + 1/C^2)`` (1/mu overhead, C at grazing
     incidence), ``m_s = Ch(mu_s) exp(-h/H)``. Sun below it (twilight): the sunray through the
-    point passes its lowest point at ``h - R mu_s^2 / 2`` and crosses the full grazing path there,
-    ``m_s = 2 C exp(-(h - R mu_s^2/2)/H)`` (below ``h = R mu_s^2/2`` the point is in the Earth's
-    shadow)."""
+    point passed its lowest point, at ``hs = h - R mu_s^2 / 2``, a distance ``R |mu_s|`` before
+    it; along the ray the height is ``hs + x^2 / 2R``, so ``m_s = C exp(-hs/H) (1 + erf(|mu_s|
+    sqrt(R / 2H)))``: the Sun-side half of the grazing path plus the part up to the point
+    (continuous at mu_s = 0; 2C exp(-hs/H) deep in twilight; below ``h = R mu_s^2/2`` the point is
+    in the Earth's shadow)."""
     mu = np.asarray(mu_s, dtype=float)
     C = math.sqrt(math.pi * radius_m / (2.0 * scale_height_m))
     with np.errstate(over="ignore"):
         ch = np.where(mu >= 0.0, 1.0 / np.sqrt(mu * mu + 1.0 / (C * C)),
-                      C * np.exp(np.minimum(radius_m * mu * mu / (2.0 * scale_height_m), 50.0)))
+                      C * np.exp(np.minimum(radius_m * mu * mu / (2.0 * scale_height_m), 50.0))
+                      * (1.0 + _erf(np.abs(mu) * C / math.sqrt(math.pi))))
     return ch / (2.0 * C)
 
 
@@ -487,3 +530,136 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     lnu_mu = np.interp(np.log(np.maximum(c, 1e-300)), lnc, lnu)
     lnu_1 = np.interp(np.log(c1), lnc, lnu)
     return -scale_height_m * (lnu_mu - lnu_1)
+
+
+@numba.njit(cache=True)
+def _limb_radiance(h, mu_c, k, h_c, A, H, C, R):
+    """Limb radiance over ``E P T_0`` at tangent height h (eq. (4) with ``u = A e^(-h/H)``,
+    ``A = tau 2C``), the Sun-elevation sine at the tangent point changing down the profile as
+    ``mu(h) = mu_c + k (h - h_c)``; 0 in the Earth's shadow (twilight: the sunray's own lowest
+    point below the surface)."""
+    mu = min(1.0, max(-1.0, mu_c + k * (h - h_c)))
+    e = math.exp(-h / H)
+    if mu >= 0.0:
+        tms = A / (2.0 * C) * e / math.sqrt(mu * mu + 1.0 / (C * C))
+    else:                                    # twilight: `sun_path_ratio`
+        hs = h - 0.5 * R * mu * mu
+        if hs < 0.0:
+            return 0.0
+        tms = 0.5 * A * math.exp(-hs / H) * (1.0 + math.erf(-mu * C / math.sqrt(math.pi)))
+    return -math.expm1(-A * e) * math.exp(-tms)
+
+
+@numba.njit(cache=True)
+def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
+    """Fraction-of-peak crossing height [m] of `_limb_radiance` with the detector's rules
+    (`_limb_profiles`): scanning down from space, the first maximum followed by a drop below
+    ``keep`` times it (or the surface, h = 0, where the detector's profile runs into the Earth's
+    disc), then the crossing of ``fraction`` times that peak above it. 1 km scan, the peak refined by golden section to ~1 m (at the shadow edge the
+    maximum is the edge itself), the crossing by bisection to ~0.2 m."""
+    step = 1000.0
+    top = max(h_c, 0.0) + 25e3
+    for _ in range(4):                       # the top must lie above the crossing
+        hs = np.empty(160)
+        gs = np.empty(160)
+        n = 0
+        h = top
+        g = _limb_radiance(h, mu_c, k, h_c, A, H, C, R)
+        hs[0], gs[0] = h, g
+        n = 1
+        jmax = 0
+        while n < 160 and h > 0.0:
+            h = max(h - step, 0.0)
+            g = _limb_radiance(h, mu_c, k, h_c, A, H, C, R)
+            hs[n], gs[n] = h, g
+            n += 1
+            if g > gs[jmax]:
+                jmax = n - 1
+            elif g < keep * gs[jmax]:
+                break
+        if gs[jmax] <= 0.0:
+            return np.nan                    # all in the Earth's shadow
+        # golden-section maximum on [h_jmax - step, h_jmax + step] (not below the surface)
+        lo, hi = max(hs[jmax] - step, 0.0), hs[jmax] + step
+        gr = 0.6180339887498949
+        x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
+        f1 = _limb_radiance(x1, mu_c, k, h_c, A, H, C, R)
+        f2 = _limb_radiance(x2, mu_c, k, h_c, A, H, C, R)
+        for _ in range(14):
+            if f1 > f2:
+                hi, x2, f2 = x2, x1, f1
+                x1 = hi - gr * (hi - lo)
+                f1 = _limb_radiance(x1, mu_c, k, h_c, A, H, C, R)
+            else:
+                lo, x1, f1 = x1, x2, f2
+                x2 = lo + gr * (hi - lo)
+                f2 = _limb_radiance(x2, mu_c, k, h_c, A, H, C, R)
+        peak = max(gs[jmax], f1, f2)
+        tgt = fraction * peak
+        if gs[0] >= tgt:
+            top += 25e3
+            continue
+        j = 1
+        while gs[j] < tgt:
+            j += 1
+        a, b = hs[j], hs[j - 1]              # g(a) >= tgt > g(b), a < b
+        for _ in range(13):
+            m = 0.5 * (a + b)
+            if _limb_radiance(m, mu_c, k, h_c, A, H, C, R) >= tgt:
+                a = m
+            else:
+                b = m
+        return 0.5 * (a + b)
+    return np.nan
+
+
+@numba.njit(cache=True)
+def _profile_heights(mu, k, h0, A, H, C, R, fraction, keep, out):
+    for i in range(mu.size):
+        h = h0[i]
+        for _ in range(2):                   # h_c = crossing(mu(h) anchored at h_c): contracts by ~k dh/dmu
+            h1 = _profile_crossing(mu[i], k[i], h, A, H, C, R, fraction, keep)
+            if not math.isfinite(h1):
+                break
+            h = h1
+        out[i] = h1
+
+
+def profile_height_shift(mu_s: np.ndarray, dmu_dh: np.ndarray, fraction: float = 0.5,
+                         scale_height_m: float = 8000.0, height_m: float = 18300.0,
+                         min_drop: float = 0.15, radius_m: float = 6371e3) -> np.ndarray:
+    """Height [m] of the fraction-of-peak crossing relative to the Sun overhead, with the Sun
+    elevation changing down the profile: eq. (5) generalised.
+
+    Eq. (5) takes the Sun-path ratio c of eq. (4) constant along a profile. The profile of one
+    edge pixel, though, runs down through tangent points that move along the line of sight
+    (~3 km of ground per km of tangent height from a few hundred km up), so the Sun elevation
+    at the tangent point changes down the profile, ``mu(h) = mu_s + dmu_dh (h - h_f)`` (mu_s at
+    the crossing itself). Near the terminator c changes by a factor ``exp(R mu dmu / H)``, which
+    moves the maximum, and with it the crossing, by kilometres (eq. (5) alone is 1..7 km low
+    there on rendered frames, docs/vision.md). Here the crossing is found on eq. (4) with that
+    ``mu(h)`` and the Earth's shadow, by the detector's rules (`_profile_crossing`), and made
+    self-consistent in h_f (two fixed-point steps; they contract by ``dmu_dh dh_f/dmu``, ~0.05).
+
+    Unlike eq. (5), the optical depth tau no longer cancels: it follows from the overhead-Sun
+    height ``height_m`` by eq. (5) itself, ``tau 2C = u_f(c(1)) exp(h_f(1) / H)``. With
+    ``dmu_dh = 0`` this is `fraction_height_shift` (tests/test_limb_sun_path.py).
+
+    mu_s, dmu_dh : (m,) Sun-elevation sine at each crossing's tangent point and its derivative
+        down the profile [1/m] (`tangent_height_sun` of the pixel's ray and of a ray turned
+        towards the body).
+    Returns (m,) shifts [m]; NaN where the profile has no maximum above the surface.
+    """
+    mu = np.ascontiguousarray(mu_s, dtype=float).reshape(-1)
+    k = np.broadcast_to(np.asarray(dmu_dh, dtype=float), mu.shape).copy()
+    H = float(scale_height_m)
+    C = math.sqrt(math.pi * radius_m / (2.0 * H))
+    lnc, lnu = _uf_table(float(fraction))
+    c1 = sun_path_ratio(np.array([1.0]), H, radius_m)
+    A = math.exp(float(np.interp(np.log(c1), lnc, lnu)[0]) + height_m / H)
+    keep = 1.0 - float(min_drop)
+    ref = _profile_crossing(1.0, 0.0, height_m, A, H, C, radius_m, fraction, keep)
+    h0 = ref + fraction_height_shift(mu, fraction, H, radius_m)
+    out = np.empty(mu.size)
+    _profile_heights(mu, k, h0, A, H, C, float(radius_m), float(fraction), keep, out)
+    return out - ref

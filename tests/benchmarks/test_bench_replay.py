@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-CACHE_VERSION = 2   # 2: logs with /camera_<k>/payload_mask
+CACHE_VERSION = 3   # 2: logs with /camera_<k>/payload_mask; 3: twilight Sun path with the erf air mass (renderer)
 
 
 def _cache() -> Path:

@@ -31,7 +31,7 @@ from vision.camera import project
 from vision.frontend import FramePrior, process_frame
 from vision.oblate import ellipsoid_limb_rays
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2   # 2: twilight Sun path with the erf air mass (scenarios/_render_kernel.py)
 LOOKS = {
     "disturbed": render.RenderOptions(),
     "clean": render.RenderOptions(clouds=False, sun_disc=False, sun_bloom=False, sun_glare=False,
