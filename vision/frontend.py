@@ -156,8 +156,8 @@ class TargetConfig:
     limb_scale_height_m : H of that model [m].
     limb_profile_below_deg : points with the Sun lower than this at the tangent point take the
         Sun elevation's change down their profile into account
-        (`vision.limb.profile_height_shift`: up to kilometres near the terminator, < 50 m above
-        15 deg, where eq. (5) alone is used: it costs ~4 us per point).
+        (`vision.limb.profile_height_shift`: kilometres near the terminator, 30-90 m at 8-15 deg
+        and less above, where eq. (5) alone is used: it costs ~3 us per point).
     limb_sun_path_sigma : model error as a fraction of the frame's mean shift (covariance term).
     limb_twilight_el_deg, limb_twilight_dh_m : measured correction [m] added to the model at these
         Sun elevations [deg] (linear interpolation, 0 outside): near the terminator the model is
@@ -208,7 +208,7 @@ class TargetConfig:
     limb_min_used: float = 0.1
     limb_sun_path: bool = False
     limb_scale_height_m: float = 8000.0
-    limb_profile_below_deg: float = 15.0
+    limb_profile_below_deg: float = 8.0
     limb_sun_path_sigma: float = 0.2
     limb_twilight_el_deg: tuple = ()
     limb_twilight_dh_m: tuple = ()
@@ -939,6 +939,27 @@ def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) 
 #: angle [rad] a limb ray is turned towards the body to find the Sun elevation's change down its
 #: profile (~2 km of tangent height from a few hundred km up: the change is linear over it)
 _PROFILE_STEP_RAD = 1e-3
+#: the profile model runs on every this-many-th point along the edge, its correction to eq. (5)
+#: interpolated between them (it varies smoothly along the limb; eq. (5) stays per point)
+_PROFILE_STRIDE = 2
+
+
+def _profile_correction(rays_e, h_t, mu, nadir_e, x_e, sun_e, dh_eq5, tc: TargetConfig, min_drop):
+    """`vision.limb.profile_height_shift` minus eq. (5) (``dh_eq5``) for limb points in edge order:
+    the Sun elevation's change down each profile, dmu/dh from the tangent point of the ray turned
+    towards the body by `_PROFILE_STEP_RAD`; computed on every `_PROFILE_STRIDE`-th point and the
+    last, linearly interpolated along the edge between them (0 where no profile model exists:
+    a profile in the Earth's shadow)."""
+    n = mu.size
+    sub = np.unique(np.r_[np.arange(0, n, _PROFILE_STRIDE), n - 1])
+    turned = _turn_towards(rays_e[sub], nadir_e, np.full(sub.size, _PROFILE_STEP_RAD))
+    h_b, mu_b = tangent_height_sun(turned, x_e, sun_e)
+    corr = profile_height_shift(mu[sub], (mu_b - mu[sub]) / (h_b - h_t[sub]), tc.limb_fraction,
+                                tc.limb_scale_height_m, tc.limb_height_m, min_drop) - dh_eq5[sub]
+    fin = np.isfinite(corr)
+    if not np.any(fin):
+        return np.zeros(n)
+    return np.interp(np.arange(n), sub[fin], corr[fin])
 
 
 def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit, J=None):
@@ -965,13 +986,8 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
             dh = fraction_height_shift(mu, tc.limb_fraction, tc.limb_scale_height_m)
             low = keep & (mu < math.sin(math.radians(tc.limb_profile_below_deg)))
             if np.any(low):
-                # the Sun elevation's change down each profile (vision.limb.profile_height_shift):
-                # mu at the tangent point of the ray turned towards the body by _PROFILE_STEP_RAD
-                turned = _turn_towards(rays_e[low], R_t @ e_c, np.full(int(low.sum()), _PROFILE_STEP_RAD))
-                h_b, mu_b = tangent_height_sun(turned, x_e, sun_e)
-                dh[low] = profile_height_shift(mu[low], (mu_b - mu[low]) / (h_b - h_t[low]), tc.limb_fraction,
-                                               tc.limb_scale_height_m, tc.limb_height_m, lc.min_drop)
-                keep &= np.isfinite(dh)      # NaN: the profile lies in the Earth's shadow
+                dh[low] += _profile_correction(rays_e[low], h_t[low], mu[low], R_t @ e_c, x_e, sun_e, dh[low],
+                                               tc, lc.min_drop)
             dh = dh[keep]
         ok[ok] = keep
         el = np.arcsin(mu[keep])

@@ -558,7 +558,7 @@ def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
     disc), then the crossing of ``fraction`` times that peak above it. 1 km scan, the peak refined by golden section to ~1 m (at the shadow edge the
     maximum is the edge itself), the crossing by bisection to ~0.2 m."""
     step = 1000.0
-    top = max(h_c, 0.0) + 25e3
+    top = max(h_c, 0.0) + 8e3              # ~e^-1 of the crossing's radiance: raised when not below it
     for _ in range(4):                       # the top must lie above the crossing
         hs = np.empty(160)
         gs = np.empty(160)
@@ -597,7 +597,7 @@ def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
         peak = max(gs[jmax], f1, f2)
         tgt = fraction * peak
         if gs[0] >= tgt:
-            top += 25e3
+            top += 20e3
             continue
         j = 1
         while gs[j] < tgt:
