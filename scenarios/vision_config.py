@@ -34,8 +34,12 @@ _TARGET_KEYS = {"enabled", "min_pixels", "max_candidates", "score_rays", "fit_ra
                 "limb_fraction", "limb_channel", "limb_height_m", "limb_height_sigma_m",
                 "limb_min_sun_elev_deg", "limb_min_used", "limb_sun_path", "limb_scale_height_m", "limb_profile_below_deg",
                 "limb_sun_path_sigma", "limb_twilight_el_deg", "limb_twilight_dh_m",
-                "limb_twilight_sigma_m", "limb_calibrate_below", "limb_calibrate_min_points",
+                "limb_twilight_sigma_m", "limb_refit_threshold_px", "limb_flank_profiles", "limb_flank_min_profiles", "limb_flank_sigma_m",
+                "limb_calibrate_below", "limb_calibrate_min_points",
                 "limb_calibrate_sigma_m"}
+#: target keys whose values must be integers
+_INT_KEYS = ("min_pixels", "max_candidates", "score_rays", "fit_rays", "ransac_max_hypotheses", "side_check_rays",
+             "limb_channel", "limb_calibrate_min_points", "limb_flank_profiles", "limb_flank_min_profiles")
 _OTHER = {"max_residual_rad2", "min_length_px", "search_alpha_min_deg", "search_line_spacing_px",
           "otsu_range"}
 
@@ -55,8 +59,7 @@ def _target(name: str, d: dict[str, Any], focal_px: float, where: str) -> Target
             spacing = search_line_spacing(focal_px, math.radians(float(d["search_alpha_min_deg"])))
         det = DetectionConfig(binar, SearchConfig(line_spacing_px=spacing), int(d.get("min_length_px", 20)))
         kw = {k: v for k, v in d.items() if k in _TARGET_KEYS}
-        for k in ("min_pixels", "max_candidates", "score_rays", "fit_rays", "ransac_max_hypotheses",
-                  "side_check_rays", "limb_channel", "limb_calibrate_min_points"):
+        for k in _INT_KEYS:
             if k in kw:
                 if not isinstance(kw[k], int) or isinstance(kw[k], bool):
                     raise ValueError(f"{k} = {kw[k]!r}; expected an integer")
@@ -69,9 +72,7 @@ def _target(name: str, d: dict[str, Any], focal_px: float, where: str) -> Target
         for k, v in kw.items():
             if k in ("limb_twilight_el_deg", "limb_twilight_dh_m"):
                 continue
-            if k not in ("enabled", "limb_sun_path") and k not in ("min_pixels", "max_candidates", "score_rays", "fit_rays",
-                                            "ransac_max_hypotheses", "side_check_rays", "limb_channel",
-                                            "limb_calibrate_min_points"):
+            if k not in ("enabled", "limb_sun_path") and k not in _INT_KEYS:
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise ValueError(f"{k} = {v!r}; expected a number")
                 kw[k] = float(v)

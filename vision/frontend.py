@@ -74,8 +74,8 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
 from vision.covariance import direction_covariance, tangent_basis
-from vision.limb import (LimbEdgeConfig, fraction_height_shift, limb_edge_points, profile_height_shift,
-                         tangent_height_sun)
+from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points,
+                         profile_height_shift, tangent_height_sun)
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
                           direction_and_radius, mirrored_direction, nadir_from_horizon)
@@ -163,6 +163,16 @@ class TargetConfig:
         Sun elevations [deg] (linear interpolation, 0 outside): near the terminator the model is
         1-7 km low (docs/vision.md); ``limb_twilight_sigma_m`` the per-frame spread left after it,
         weighted in the covariance by the share of points below the last knot.
+    limb_refit_threshold_px : inlier threshold [px] of the refits with the limb heights (limb edge,
+        flank, calibrated threshold edge): their rays lie on one cone to the heights' accuracy
+        (~0.1 km, a fraction of a pixel), so a tighter one than ``ransac_threshold_px`` (which
+        must admit the threshold edge's 1-4 km of height variation along the limb).
+    limb_flank_profiles : when fewer than ``limb_min_used`` of the profiles are usable (a clipped
+        limb maximum), the height of the edge pixel is fitted on the unsaturated flank of this
+        many profiles spread along the edge (`vision.limb.flank_heights`: eq. (4)'s shape with
+        the exposure and black level free), interpolated along it, and the threshold edge fitted
+        with those heights; 0 = off. At least ``limb_flank_min_profiles`` must fit;
+        ``limb_flank_sigma_m`` the covariance term (with the heights' spread over sqrt(n)).
     limb_calibrate_below : when fewer than this fraction of the winner's inliers give a usable
         limb profile (a clipped limb maximum, a twilight limb: a short arc), but at least
         ``limb_calibrate_min_points`` do, the threshold edge is *calibrated* on the same frame
@@ -213,6 +223,10 @@ class TargetConfig:
     limb_twilight_el_deg: tuple = ()
     limb_twilight_dh_m: tuple = ()
     limb_twilight_sigma_m: float = 1100.0
+    limb_refit_threshold_px: float = 4.0
+    limb_flank_profiles: int = 0
+    limb_flank_min_profiles: int = 8
+    limb_flank_sigma_m: float = 1000.0
     limb_calibrate_below: float = 0.0
     limb_calibrate_min_points: int = 20
     limb_calibrate_sigma_m: float = 1500.0
@@ -276,6 +290,14 @@ class TargetConfig:
                 "increasing elevations [deg] and height corrections |dh| <= 30 km [m]")
         if not (math.isfinite(self.limb_twilight_sigma_m) and self.limb_twilight_sigma_m >= 0):
             bad("limb_twilight_sigma_m", "a finite number >= 0")
+        if not (math.isfinite(self.limb_refit_threshold_px) and self.limb_refit_threshold_px > 0):
+            bad("limb_refit_threshold_px", "a threshold > 0 px")
+        if not (isinstance(self.limb_flank_profiles, int) and 0 <= self.limb_flank_profiles <= 512):
+            bad("limb_flank_profiles", "an integer in [0, 512] (0 = off)")
+        if not (isinstance(self.limb_flank_min_profiles, int) and self.limb_flank_min_profiles >= 3):
+            bad("limb_flank_min_profiles", "an integer >= 3")
+        if not (math.isfinite(self.limb_flank_sigma_m) and self.limb_flank_sigma_m >= 0):
+            bad("limb_flank_sigma_m", "a finite number >= 0")
         if not 0.0 <= self.limb_calibrate_below <= 1.0:
             bad("limb_calibrate_below", "a fraction in [0, 1] (0 = off)")
         if not (isinstance(self.limb_calibrate_min_points, int) and self.limb_calibrate_min_points >= 3):
@@ -310,10 +332,11 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
     sun_spacing = search_line_spacing(focal_px, math.radians(0.5))
     earth = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, max_residual=4e-6, R_px2=1.0, L_px=300.0,
+        min_pixels=100, max_residual=4e-6, R_px2=0.27, L_px=300.0,
         atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
-        score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0,
-        limb_min_sun_elev_deg=-3.0, limb_sun_path=True, limb_sun_path_sigma=0.05,
+        score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0, limb_height_sigma_m=150.0,
+        limb_min_sun_elev_deg=-3.0, limb_sun_path=True, limb_sun_path_sigma=0.05, limb_refit_threshold_px=2.0,
+        limb_flank_profiles=16,
         limb_calibrate_below=0.1, limb_calibrate_sigma_m=3000.0)
     sun = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
@@ -410,7 +433,8 @@ class TargetResult:
     limb_edge: bool = False   # Earth: the fraction-of-peak limb edge was used (vision.limb)
     limb_used: float = 0.0    # its fraction of usable limb profiles
     limb_shift_m: float = 0.0  # mean Sun-path height shift of its points (vision.limb eq. (5))
-    limb_path: str = ""       # Earth: "limb" (fraction-of-peak edge), "calibrated" (threshold edge
+    limb_path: str = ""       # Earth: "limb" (fraction-of-peak edge), "flank" (threshold edge with
+    # heights fitted on the unsaturated profile flanks), "calibrated" (threshold edge
     # with d calibrated on the usable limb profiles), "" (threshold edge with atmosphere_m)
     limb_d_m: float = math.nan  # calibrated effective thickness d_thr of the threshold edge [m]
 
@@ -969,7 +993,8 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
 
     With ``limb_sun_path`` each usable point's crossing height is predicted from the Sun
     elevation at its tangent point (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`)
-    and its ray is turned towards the body by ``dh * d alpha / d d`` (`LimbModel.alpha_rate`), so
+    and its ray is turned towards the body by ``alpha(d + dh) - alpha(d)``
+    (`LimbModel.cone_angle_change`), so
     that all points sit at the overhead-Sun height ``limb_height_m`` of the fit (one cone angle);
     the covariance term is then ``sigma_d^2 = limb_height_sigma_m^2 + (limb_sun_path_sigma *
     mean dh)^2`` (the model's measured error grows with the shift, docs/vision.md)."""
@@ -977,54 +1002,77 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     lc = LimbEdgeConfig(fraction=tc.limb_fraction, channel=tc.limb_channel)
     uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True)
     el = None
+    R_t = tilt_corrected_attitude(R_ec, e_c, x_e)
+    twilight = False
     if np.any(ok):
-        R_t = tilt_corrected_attitude(R_ec, e_c, x_e)
-        rays_e = rn[ok] @ R_t.T
-        h_t, mu = tangent_height_sun(rays_e, x_e, sun_e)
-        keep = mu >= math.sin(math.radians(tc.limb_min_sun_elev_deg))
-        if tc.limb_sun_path:
-            dh = fraction_height_shift(mu, tc.limb_fraction, tc.limb_scale_height_m)
-            low = keep & (mu < math.sin(math.radians(tc.limb_profile_below_deg)))
-            if np.any(low):
-                dh[low] += _profile_correction(rays_e[low], h_t[low], mu[low], R_t @ e_c, x_e, sun_e, dh[low],
-                                               tc, lc.min_drop)
-            dh = dh[keep]
+        keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
         ok[ok] = keep
-        el = np.arcsin(mu[keep])
     n_ok = int(ok.sum())
     m = uv.shape[0]
     used = n_ok / max(m, 1)
     calibrate = (tc.limb_calibrate_below > 0 and used < tc.limb_calibrate_below
                  and n_ok >= tc.limb_calibrate_min_points and J is not None)
-    if not calibrate and n_ok < max(20, tc.limb_min_used * m):
-        return None
+    if n_ok < max(20, tc.limb_min_used * m):
+        # too few usable profiles (a clipped limb maximum): heights fitted on the flanks, else
+        # the threshold edge calibrated on the usable ones, else the threshold edge itself
+        if tc.limb_flank_profiles > 0 and J is not None:
+            fr = _flank_refit(image, camera, tc, lc, model_l, uv, rays_c, J, pa, e_c, R_t, x_e, sun_e, used)
+            if fr is not None:
+                # again with the attitude tilted onto this better nadir: the Sun elevations at
+                # the tangent points shape the profiles (twilight), and the first fit's nadir
+                # (threshold edge) is off by tenths of a degree
+                R_t2 = tilt_corrected_attitude(R_ec, model_l.to_camera(fr[1].e_c), x_e)
+                fr = _flank_refit(image, camera, tc, lc, model_l, uv, rays_c, J, pa, e_c, R_t2, x_e, sun_e, used) or fr
+                return fr
+        if not calibrate:
+            return None
     if not (tc.limb_sun_path and n_ok):
         dh = np.zeros(n_ok)
     twi = 0.0
-    if tc.limb_sun_path and n_ok:
-        if len(tc.limb_twilight_el_deg):
-            kn = np.radians(np.asarray(tc.limb_twilight_el_deg, dtype=float))
-            dh = dh + np.interp(el, kn, np.asarray(tc.limb_twilight_dh_m, dtype=float), left=0.0, right=0.0)
-            twi = float(np.mean(el < kn[-1]))
+    if tc.limb_sun_path and n_ok and len(tc.limb_twilight_el_deg):
+        kn = np.radians(np.asarray(tc.limb_twilight_el_deg, dtype=float))
+        dh = dh + np.interp(el, kn, np.asarray(tc.limb_twilight_dh_m, dtype=float), left=0.0, right=0.0)
+        twi = float(np.mean(el < kn[-1]))
     if calibrate:
         return _calibrated_threshold_refit(tc, model_l, uv, rays_c, J, pa, e_c, rn[ok], ok, dh, used)
     rays2, J2 = rn[ok], Jn[ok]
-    if tc.limb_sun_path:
-        rays2 = _turn_towards(rays2, e_c, dh * model_l.alpha_rate)
-    H2 = model_l.to_fit(rays2)
-    e0 = model_l.M @ e_c
-    fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))
-    thr = tc.ransac_threshold_px * pa[ok]
-    inl = np.ones(n_ok, bool)
-    for _ in range(2):
-        inl = np.abs(angle_residuals(H2, fit.e_c, fit.alpha)) <= thr
-        if inl.sum() < 20:
-            return None
-        fit = _fit(H2[inl], model_l.alpha, fit.e_c)
+    thr = tc.limb_refit_threshold_px * pa[ok]
+    r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr)
+    if r is not None and twilight:
+        # near the terminator a Sun elevation a tenth of a degree off moves the predicted heights
+        # by ~0.15 km: the shifts again with the attitude tilted onto the limb fit's nadir
+        R_t2 = tilt_corrected_attitude(R_ec, model_l.to_camera(r[0].e_c), x_e)
+        dh2 = _sun_path_shifts(rn[ok], R_t2, e_c, x_e, sun_e, tc, lc, keep_all=True)[1]
+        if np.all(np.isfinite(dh2)):
+            dh = dh2 + (dh - _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc, keep_all=True)[1])
+            r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr) or r
+    if r is None:
+        return None
+    fit, inl = r
+    rays2 = _turn_towards(rays2, e_c, model_l.cone_angle_change(dh))
     shift = float(np.mean(dh[inl]))
     sigma_d = math.sqrt(tc.limb_height_sigma_m**2 + (tc.limb_sun_path_sigma * shift)**2
                         + (twi * tc.limb_twilight_sigma_m)**2)
     return model_l, fit, uvn[ok], rays2, J2, inl, sigma_d, used, shift, "limb", math.nan
+
+
+def _sun_path_shifts(rays_c, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdgeConfig, keep_all: bool = False):
+    """Crossing-height shifts of limb rays (camera frame) with the attitude R_t (camera -> e):
+    ``(keep, dh, el, twilight)``: keep the points with the Sun above ``limb_min_sun_elev_deg`` at
+    their tangent points (all with ``keep_all``), dh [m] their shifts (eq. (5) of `vision.limb`,
+    with the Sun elevation's change down the profile below ``limb_profile_below_deg``; zeros
+    without ``limb_sun_path``), el [rad] their Sun elevations, twilight: some of them that low."""
+    rays_e = rays_c @ R_t.T
+    h_t, mu = tangent_height_sun(rays_e, x_e, sun_e)
+    keep = np.ones(mu.size, bool) if keep_all else mu >= math.sin(math.radians(tc.limb_min_sun_elev_deg))
+    dh = np.zeros(mu.size)
+    low = keep & (mu < math.sin(math.radians(tc.limb_profile_below_deg)))
+    if tc.limb_sun_path:
+        dh = fraction_height_shift(mu, tc.limb_fraction, tc.limb_scale_height_m)
+        if np.any(low):
+            dh[low] += _profile_correction(rays_e[low], h_t[low], mu[low], R_t @ e_c, x_e, sun_e, dh[low],
+                                           tc, lc.min_drop)
+    return keep, dh[keep], np.arcsin(mu[keep]), bool(tc.limb_sun_path and np.any(low))
 
 
 def _turn_towards(rays: np.ndarray, e_c: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -1037,33 +1085,72 @@ def _turn_towards(rays: np.ndarray, e_c: np.ndarray, delta: np.ndarray) -> np.nd
 def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c, J, pa, e_c, rays_limb,
                                 ok, dh, used):
     """Threshold edge calibrated with the usable limb profiles of the same frame
-    (``TargetConfig.limb_calibrate_below``): ``d_i = h_i + a_i / alpha_rate`` at the usable points
+    (``TargetConfig.limb_calibrate_below``): ``d_i`` = the height whose cone is ``a_i`` wider than
+    the cone of ``h_i`` (`LimbModel.height_change`) at the usable points
     (h_i = ``limb_height_m`` + Sun-path shift: the known height of the fraction-of-peak crossing;
     a_i the angle from it out to the threshold pixel), ``d_thr = median(d_i)``, and every
-    threshold ray turned towards the body by ``(d_thr - limb_height_m) alpha_rate`` so that the
-    whole arc fits the cone of ``limb_height_m`` (`LimbModel.alpha_rate`, as for the Sun-path
+    threshold ray turned towards the body by ``alpha(d_thr) - alpha(limb_height_m)`` so that the
+    whole arc fits the cone of ``limb_height_m`` (`LimbModel.cone_angle_change`, as for the Sun-path
     shift). None when the refit keeps fewer than 20 inliers."""
-    rate = model_l.alpha_rate
     a = np.arccos(np.clip(np.sum(rays_c[ok] * rays_limb, axis=1), -1.0, 1.0))
     # sign: positive when the limb crossing lies towards the body from the threshold pixel
     a = np.where(rays_limb @ e_c >= rays_c[ok] @ e_c, a, -a)
-    d_i = tc.limb_height_m + dh + a / rate
+    d_i = tc.limb_height_m + model_l.height_change(model_l.cone_angle_change(dh) + a)
     d_thr = _median(d_i)
     mad = 1.4826 * _median(np.abs(d_i - d_thr))
-    rays2 = _turn_towards(rays_c, e_c, np.full(rays_c.shape[0], (d_thr - tc.limb_height_m) * rate))
+    rays2 = _turn_towards(rays_c, e_c, np.full(rays_c.shape[0], model_l.cone_angle_change(d_thr - tc.limb_height_m)))
+    r = _refit_turned(model_l, rays2, e_c, tc.limb_refit_threshold_px * pa)
+    if r is None:
+        return None
+    sigma_d = math.sqrt(tc.limb_calibrate_sigma_m**2 + mad**2 / d_i.size)
+    return (model_l, r[0], uv, rays2, J, r[1], sigma_d, used, float(np.mean(dh)) if dh.size else 0.0,
+            "calibrated", d_thr)
+
+
+def _refit_turned(model_l: LimbModel, rays2, e_c, thr):
+    """The cone of ``model_l`` (d = ``limb_height_m``) fitted to rays already turned to that
+    height, from e_c, with the inliers re-selected twice (``thr`` [rad] per ray); (fit, inliers)
+    or None below 20 inliers."""
     H2 = model_l.to_fit(rays2)
     e0 = model_l.M @ e_c
     fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))
-    thr = tc.ransac_threshold_px * pa
     inl = np.ones(rays2.shape[0], bool)
     for _ in range(2):
         inl = np.abs(angle_residuals(H2, fit.e_c, fit.alpha)) <= thr
         if inl.sum() < 20:
             return None
         fit = _fit(H2[inl], model_l.alpha, fit.e_c)
-    sigma_d = math.sqrt(tc.limb_calibrate_sigma_m**2 + mad**2 / d_i.size)
-    return (model_l, fit, uv, rays2, J, inl, sigma_d, used, float(np.mean(dh)) if dh.size else 0.0,
-            "calibrated", d_thr)
+    return fit, inl
+
+
+def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: LimbModel, uv, rays_c, J, pa,
+                 e_c, R_t, x_e, sun_e, used):
+    """Threshold edge with each pixel's height fitted on the unsaturated flank of its limb profile
+    (`vision.limb.flank_heights`; the limb maximum clipped by the exposure): on
+    ``limb_flank_profiles`` profiles spread along the edge, the heights more than 3 robust
+    sigmas (at least 1 km) from their median dropped, the rest interpolated along the edge; each
+    threshold ray turned towards the body by ``alpha(h_i) - alpha(limb_height_m)`` and the cone of
+    ``limb_height_m`` fitted. None with fewer than ``limb_flank_min_profiles`` fitted profiles or
+    20 inliers. Covariance term ``limb_flank_sigma_m`` with the heights' spread over sqrt(n)."""
+    m = uv.shape[0]
+    idx = np.unique(np.linspace(0, m - 1, min(tc.limb_flank_profiles, m)).round().astype(int))
+    h = flank_heights(image, camera, uv[idx], rays_c[idx], e_c, pa[idx], R_t, x_e, sun_e, lc,
+                      height_m=tc.limb_height_m, scale_height_m=tc.limb_scale_height_m)
+    fin = np.isfinite(h)
+    if fin.sum() < tc.limb_flank_min_profiles:
+        return None
+    med = _median(h[fin])
+    mad = 1.4826 * _median(np.abs(h[fin] - med))
+    fin &= np.abs(h - med) <= max(3.0 * mad, 1000.0)
+    if fin.sum() < tc.limb_flank_min_profiles:
+        return None
+    h_all = np.interp(np.arange(m), idx[fin], h[fin])
+    rays2 = _turn_towards(rays_c, e_c, model_l.cone_angle_change(h_all - tc.limb_height_m))
+    r = _refit_turned(model_l, rays2, e_c, tc.limb_refit_threshold_px * pa)
+    if r is None:
+        return None
+    sigma_d = math.sqrt(tc.limb_flank_sigma_m**2 + mad**2 / fin.sum())
+    return model_l, r[0], uv, rays2, J, r[1], sigma_d, used, 0.0, "flank", float(np.mean(h[fin]))
 
 
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,

@@ -73,6 +73,19 @@ class LimbModel:
         e = self.M_inv @ e_fit
         return e / np.linalg.norm(e)
 
+    def cone_angle_change(self, dd) -> np.ndarray:
+        """``alpha(d + dd) - alpha(d)`` [rad]: how much wider the cone of a limb ``dd`` [m] higher
+        is (003 eq. (5), ``sin alpha = (r + d) / |x|`` in the fit frame, ``|x| = 1 / (alpha_rate
+        cos alpha)``). Exact where ``alpha_rate dd`` is not: from 100 km up, a limb 35 km higher
+        is 1.3x the linear angle (the rate grows as the cone closes in on the horizon's dip)."""
+        s = math.sin(self.alpha) + np.asarray(dd, dtype=float) * self.alpha_rate * math.cos(self.alpha)
+        return np.arcsin(np.clip(s, -1.0, 1.0)) - self.alpha
+
+    def height_change(self, dalpha) -> np.ndarray:
+        """The inverse of `cone_angle_change`: ``dd`` [m] with ``alpha(d + dd) = alpha(d) + dalpha``."""
+        return ((np.sin(self.alpha + np.asarray(dalpha, dtype=float)) - math.sin(self.alpha))
+                / (self.alpha_rate * math.cos(self.alpha)))
+
 
 def gaussian_radius(lat: float) -> float:
     """sqrt(M N): the mean radius of curvature at geodetic latitude ``lat`` [rad] (the geometric
