@@ -949,15 +949,21 @@ def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) 
     about the nadir is left as the prior has it (it moves the tangent points along the limb, which
     changes their Sun elevation by about sin(angle nadir to limb) times the error).
     """
-    a = np.asarray(R_ec, dtype=float) @ np.asarray(e_c, dtype=float)
-    a /= np.linalg.norm(a)
-    b = -np.asarray(x_e, dtype=float) / np.linalg.norm(x_e)
-    from nav.rotation import rotvec_to_matrix
-    axis = np.cross(a, b)
-    s, c = float(np.linalg.norm(axis)), float(a @ b)
+    R = np.asarray(R_ec, dtype=float)
+    a0, a1, a2 = (R @ np.asarray(e_c, dtype=float)).tolist()
+    b0, b1, b2 = (-np.asarray(x_e, dtype=float)).tolist()
+    na, nb = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2), math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    a0, a1, a2, b0, b1, b2 = a0 / na, a1 / na, a2 / na, b0 / nb, b1 / nb, b2 / nb
+    # Rodrigues' rotation a -> b about k = a x b / |a x b| (plain floats: numpy's small-vector
+    # calls cost ~50 us here)
+    k0, k1, k2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    s = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
+    c = a0 * b0 + a1 * b1 + a2 * b2
     if s < 1e-15:
-        return np.asarray(R_ec, dtype=float)
-    return rotvec_to_matrix(axis * (math.atan2(s, c) / s)) @ np.asarray(R_ec, dtype=float)
+        return R
+    k0, k1, k2 = k0 / s, k1 / s, k2 / s
+    K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
+    return (np.eye(3) + s * K + (1.0 - c) * (K @ K)) @ R
 
 
 #: angle [rad] a limb ray is turned towards the body to find the Sun elevation's change down its
@@ -965,7 +971,7 @@ def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) 
 _PROFILE_STEP_RAD = 1e-3
 #: the profile model runs on every this-many-th point along the edge, its correction to eq. (5)
 #: interpolated between them (it varies smoothly along the limb; eq. (5) stays per point)
-_PROFILE_STRIDE = 2
+_PROFILE_STRIDE = 8
 
 
 def _profile_correction(rays_e, h_t, mu, nadir_e, x_e, sun_e, dh_eq5, tc: TargetConfig, min_drop):
@@ -1007,6 +1013,7 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     if np.any(ok):
         keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
         ok[ok] = keep
+        dh_sun = dh
     n_ok = int(ok.sum())
     m = uv.shape[0]
     used = n_ok / max(m, 1)
@@ -1039,13 +1046,12 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     thr = tc.limb_refit_threshold_px * pa[ok]
     r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr)
     if r is not None and twilight:
-        # near the terminator a Sun elevation a tenth of a degree off moves the predicted heights
-        # by ~0.15 km: the shifts again with the attitude tilted onto the limb fit's nadir
+        # twilight: the shifts again with the attitude tilted onto this first limb fit's nadir (a
+        # Sun elevation a tenth of a degree off moves the predicted heights by ~0.15 km there, and
+        # the threshold edge's nadir that tilted R_t is off by tenths of a degree)
         R_t2 = tilt_corrected_attitude(R_ec, model_l.to_camera(r[0].e_c), x_e)
-        dh2 = _sun_path_shifts(rn[ok], R_t2, e_c, x_e, sun_e, tc, lc, keep_all=True)[1]
-        if np.all(np.isfinite(dh2)):
-            dh = dh2 + (dh - _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc, keep_all=True)[1])
-            r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr) or r
+        dh = dh + (_sun_path_shifts(rn[ok], R_t2, e_c, x_e, sun_e, tc, lc, keep_all=True)[1] - dh_sun)
+        r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr) or r
     if r is None:
         return None
     fit, inl = r

@@ -563,8 +563,8 @@ def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
     """Fraction-of-peak crossing height [m] of `_limb_radiance` with the detector's rules
     (`_limb_profiles`): scanning down from space, the first maximum followed by a drop below
     ``keep`` times it (or the surface, h = 0, where the detector's profile runs into the Earth's
-    disc), then the crossing of ``fraction`` times that peak above it. 1 km scan, the peak refined by golden section to ~1 m (at the shadow edge the
-    maximum is the edge itself), the crossing by bisection to ~0.2 m."""
+    disc), then the crossing of ``fraction`` times that peak above it. 1 km scan, the peak refined by golden section to ~10 m (at the shadow edge the
+    maximum is the edge itself), the crossing by bisection to ~1 m."""
     step = 1000.0
     top = max(h_c, 0.0) + 8e3              # ~e^-1 of the crossing's radiance: raised when not below it
     for _ in range(4):                       # the top must lie above the crossing
@@ -593,7 +593,7 @@ def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
         x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
         f1 = _limb_radiance(x1, mu_c, k, h_c, A, H, C, R)
         f2 = _limb_radiance(x2, mu_c, k, h_c, A, H, C, R)
-        for _ in range(14):
+        for _ in range(11):
             if f1 > f2:
                 hi, x2, f2 = x2, x1, f1
                 x1 = hi - gr * (hi - lo)
@@ -611,7 +611,7 @@ def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
         while gs[j] < tgt:
             j += 1
         a, b = hs[j], hs[j - 1]              # g(a) >= tgt > g(b), a < b
-        for _ in range(13):
+        for _ in range(10):
             m = 0.5 * (a + b)
             if _limb_radiance(m, mu_c, k, h_c, A, H, C, R) >= tgt:
                 a = m
