@@ -28,9 +28,8 @@ in space to ``search_px`` pixels towards the body, linearised with the tone curv
 the background (space side) subtracted, the first maximum scanning inwards found, and the edge
 moved to the sub-pixel crossing of ``bg + f (peak - bg)`` on the space side of that maximum.
 
-A profile cannot be used when (a) its maximum is clipped (sensor saturation hides the knee: then
-only the exponential tail is seen, which is translation-invariant, and no exposure-invariant
-height exists), (b) the Earth's surface merges with the limb without a dip (same), or (c) the
+A profile cannot be used when (a) its maximum is clipped (sensor saturation hides the peak; the
+height then comes from the shape of its unsaturated flank instead, `flank_heights`), (b) the Earth's surface merges with the limb without a dip (same), or (c) the
 Sun is low at the tangent point: the sunlight reaching the lower limb is then dimmed by the lower
 atmosphere, more so the lower it goes, and the maximum moves up (below the terminator it is the
 shadow edge, not the optical knee). (a), (b) are detected on the profile; (c) needs the Sun direction: `sun_elevation`
