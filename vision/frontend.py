@@ -74,7 +74,7 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
 from vision.covariance import direction_covariance, tangent_basis
-from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points,
+from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points, phase_slope,
                          profile_height_shift, tangent_height_sun)
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
@@ -163,6 +163,10 @@ class TargetConfig:
         Sun elevations [deg] (linear interpolation, 0 outside): near the terminator the model is
         1-7 km low (docs/vision.md); ``limb_twilight_sigma_m`` the per-frame spread left after it,
         weighted in the covariance by the share of points below the last knot.
+    limb_aerosol_weight, limb_aerosol_g : the limb's scattering phase function (Rayleigh plus this
+        weight of a Henyey-Greenstein aerosol lobe of asymmetry g, `vision.limb.phase_function`):
+        its change along each profile is divided out (`vision.limb.phase_slope`), which matters
+        near the Sun; 0 = Rayleigh only.
     limb_refit_threshold_px : inlier threshold [px] of the refits with the limb heights (limb edge,
         flank, calibrated threshold edge): their rays lie on one cone to the heights' accuracy
         (~0.1 km, a fraction of a pixel), so a tighter one than ``ransac_threshold_px`` (which
@@ -224,9 +228,11 @@ class TargetConfig:
     limb_twilight_dh_m: tuple = ()
     limb_twilight_sigma_m: float = 1100.0
     limb_refit_threshold_px: float = 4.0
+    limb_aerosol_weight: float = 0.0
+    limb_aerosol_g: float = 0.75
     limb_flank_profiles: int = 0
     limb_flank_min_profiles: int = 8
-    limb_flank_sigma_m: float = 1000.0
+    limb_flank_sigma_m: float = 600.0
     limb_calibrate_below: float = 0.0
     limb_calibrate_min_points: int = 20
     limb_calibrate_sigma_m: float = 1500.0
@@ -292,6 +298,10 @@ class TargetConfig:
             bad("limb_twilight_sigma_m", "a finite number >= 0")
         if not (math.isfinite(self.limb_refit_threshold_px) and self.limb_refit_threshold_px > 0):
             bad("limb_refit_threshold_px", "a threshold > 0 px")
+        if not (math.isfinite(self.limb_aerosol_weight) and 0.0 <= self.limb_aerosol_weight <= 1.0):
+            bad("limb_aerosol_weight", "a weight in [0, 1]")
+        if not (math.isfinite(self.limb_aerosol_g) and 0.0 <= self.limb_aerosol_g < 1.0):
+            bad("limb_aerosol_g", "an asymmetry parameter in [0, 1)")
         if not (isinstance(self.limb_flank_profiles, int) and 0 <= self.limb_flank_profiles <= 512):
             bad("limb_flank_profiles", "an integer in [0, 512] (0 = off)")
         if not (isinstance(self.limb_flank_min_profiles, int) and self.limb_flank_min_profiles >= 3):
@@ -332,11 +342,11 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
     sun_spacing = search_line_spacing(focal_px, math.radians(0.5))
     earth = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, max_residual=4e-6, R_px2=0.27, L_px=300.0,
+        min_pixels=100, max_residual=4e-6, R_px2=0.18, L_px=300.0,
         atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
         score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0, limb_height_sigma_m=150.0,
         limb_min_sun_elev_deg=-3.0, limb_sun_path=True, limb_sun_path_sigma=0.05, limb_refit_threshold_px=2.0,
-        limb_flank_profiles=16,
+        limb_aerosol_weight=0.25, limb_aerosol_g=0.75, limb_flank_profiles=16,
         limb_calibrate_below=0.1, limb_calibrate_sigma_m=3000.0)
     sun = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(line_spacing_px=sun_spacing), 12),
@@ -1006,9 +1016,10 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
     mean dh)^2`` (the model's measured error grows with the shift, docs/vision.md)."""
     model_l, R_ec, x_e, sun_e = limb
     lc = LimbEdgeConfig(fraction=tc.limb_fraction, channel=tc.limb_channel)
-    uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True)
-    el = None
     R_t = tilt_corrected_attitude(R_ec, e_c, x_e)
+    slope = phase_slope(rays_c, e_c, pa, R_t.T @ sun_e, tc.limb_aerosol_weight, tc.limb_aerosol_g)
+    uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True, phase_slope=slope)
+    el = None
     twilight = False
     if np.any(ok):
         keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
@@ -1141,7 +1152,8 @@ def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: L
     m = uv.shape[0]
     idx = np.unique(np.linspace(0, m - 1, min(tc.limb_flank_profiles, m)).round().astype(int))
     h = flank_heights(image, camera, uv[idx], rays_c[idx], e_c, pa[idx], R_t, x_e, sun_e, lc,
-                      height_m=tc.limb_height_m, scale_height_m=tc.limb_scale_height_m)
+                      height_m=tc.limb_height_m, scale_height_m=tc.limb_scale_height_m,
+                      aerosol_weight=tc.limb_aerosol_weight, aerosol_g=tc.limb_aerosol_g)
     fin = np.isfinite(h)
     if fin.sum() < tc.limb_flank_min_profiles:
         return None

@@ -218,7 +218,7 @@ def _q32(u, s, n):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_keep):
+def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_keep, slope):
     """Fraction-of-peak crossing of every limb profile (`limb_edge_points`), one pass per profile.
 
     The profile of edge pixel i is sampled (`_bilinear1`) at ``uv_i + s_k n_i``. The steps are
@@ -235,19 +235,26 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     samples and a drop test within 0.1 % of its bound only (float32 power: results equal to the
     array version to its 1-ulp rounding). Returns the crossing offset sc (m,) [px along n_i] and
     ok (m,): inside the image, a drop after the peak, a crossing found, peak below ``clip``,
-    peak above bg + 1e-6 (all in float32 as the array version)."""
+    peak above bg + 1e-6 (all in float32 as the array version). ``slope`` (m,): d ln P / ds of
+    the phase function along each profile [1/px] (`phase_slope`): the samples are divided by
+    ``exp(slope s)`` (``exp(slope s / gamma)`` on the 8-bit scale) before the scan, the clip test
+    stays on the raw samples; 0: the samples as they are."""
     m = uv.shape[0]
     S = s.shape[0]
     h, w, _ = img.shape
     sc = np.zeros(m)
     ok = np.zeros(m, np.bool_)
-    c = np.empty(S, np.float32)          # clipped samples, 0..taken-1
+    c = np.empty(S, np.float32)          # clipped samples, 0..taken-1 (phase-corrected)
+    f = np.empty(S, np.float32)          # their phase factors
     eps = np.float32(1e-6)
     lo_m, hi_m = 1.0 - 1e-3, 1.0 + 1e-3
     for i in range(m):
         u, v, nx, ny = uv[i, 0], uv[i, 1], nrm[i, 0], nrm[i, 1]
         if not (math.isfinite(nx) and math.isfinite(ny)):
             continue
+        b = slope[i] / gamma
+        for k in range(S):
+            f[k] = np.float32(1.0) if b == 0.0 else np.float32(math.exp(-b * s[k]))
         xa, ya = _q32(u, s[0], nx), _q32(v, s[0], ny)
         xb, yb = _q32(u, s[S - 1], nx), _q32(v, s[S - 1], ny)
         safe = (0.5 <= xa <= w - 1.5 and 0.5 <= xb <= w - 1.5 and 0.5 <= ya <= h - 1.5
@@ -262,12 +269,12 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
                 if not val >= 0.0:
                     inside = False
                     break
-                c[k] = min(val, np.float32(255.0))
+                c[k] = min(val, np.float32(255.0)) * f[k]
             if not inside:
                 continue
             taken = S
         for k in range(taken, i0 + 1):
-            c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny)
+            c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
         taken = max(taken, i0 + 1)
         cmin = c[0]
         for k in range(1, i0 + 1):
@@ -279,7 +286,7 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
         stop = -1
         for k in range(i0, S):
             if k >= taken:
-                c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny)
+                c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
                 taken = k + 1
             ck = c[k]
             if ck > vmax:
@@ -301,7 +308,10 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
             continue                      # no drop after the maximum: surface merges with the limb
         peak = _tone(vmax, gamma)
         bg = _tone(cmin, gamma)
-        if not (peak < clip and peak > bg + eps):
+        raw = np.float32(0.0)              # the clip test on the raw samples
+        for k in range(i0, stop + 1):
+            raw = max(raw, c[k] / f[k])
+        if not (_tone(raw, gamma) < clip and peak > bg + eps):
             continue
         jpk = -1
         for k in range(i0, stop + 1):
@@ -365,14 +375,44 @@ def _profile_crossings_reference(image, uv, n, s, config: LimbEdgeConfig):
     return sc, ok
 
 
-def _profile_crossings(image, uv, n, s, config: LimbEdgeConfig):
+def _profile_crossings(image, uv, n, s, config: LimbEdgeConfig, slope=None):
     """(sc, ok) of every profile: `_limb_profiles` with the configuration's constants."""
     img = image if image.ndim == 3 else image[:, :, None]
     ch = -1 if (config.channel < 0 and img.shape[2] > 1) else (0 if img.shape[2] == 1 else config.channel)
     return _limb_profiles(img, ch, np.ascontiguousarray(uv, dtype=float), np.ascontiguousarray(n, dtype=float),
                           s, config.space_px, np.float32(config.gamma), np.float32(config.fraction),
                           np.float32(1.0 - config.min_drop), np.float32((config.clip_level / 255.0) ** config.gamma),
-                          float((1.0 - config.min_drop) ** (1.0 / config.gamma)))
+                          float((1.0 - config.min_drop) ** (1.0 / config.gamma)),
+                          np.zeros(len(uv)) if slope is None else np.ascontiguousarray(slope, dtype=float))
+
+
+def phase_function(cos_g, aerosol_weight: float = 0.0, aerosol_g: float = 0.75) -> np.ndarray:
+    """Scattering phase function of the limb (up to a constant): Rayleigh ``3/4 (1 + cos^2 g)``
+    and a Henyey-Greenstein aerosol lobe ``(1 - g^2) / (1 + g^2 - 2 g cos)^(3/2)`` weighted by
+    ``aerosol_weight`` (the renderer's atmosphere, `scenarios.render`)."""
+    c = np.asarray(cos_g, dtype=float)
+    g = float(aerosol_g)
+    return ((1.0 - aerosol_weight) * 0.75 * (1.0 + c * c)
+            + aerosol_weight * (1.0 - g * g) / (1.0 + g * g - 2.0 * g * c) ** 1.5)
+
+
+def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, sun_c: np.ndarray,
+                aerosol_weight: float = 0.0, aerosol_g: float = 0.75) -> np.ndarray:
+    """d ln P / ds [1/px] along each limb profile (towards the body e_c, one pixel angle per px):
+    the phase function P of eq. (1) at the scattering angle to the Sun ``sun_c`` (camera frame)
+    changes down the profile, most near the Sun (the aerosol lobe: ~9 % per degree at 20 deg),
+    which shifts the profile's maximum against its crossing (eq. (3) holds for a factor that is
+    constant along the profile only). Measured on rendered frames near the Sun: 0.04-0.06 deg of
+    nadir (docs/vision.md)."""
+    s = np.asarray(sun_c, dtype=float)
+    s = s / np.linalg.norm(s)
+    e = np.asarray(e_c, dtype=float)
+    t = e[None, :] - (rays_c @ e)[:, None] * rays_c
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
+    pa = np.asarray(pixel_angle, dtype=float)[:, None] * 10.0     # over 10 px: crossing to peak
+    turned = np.cos(pa) * rays_c + np.sin(pa) * t
+    return (np.log(phase_function(turned @ s, aerosol_weight, aerosol_g))
+            - np.log(phase_function(rays_c @ s, aerosol_weight, aerosol_g))) / 10.0
 
 
 def _profile_normals(camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray, e_c: np.ndarray,
@@ -392,7 +432,7 @@ def _profile_normals(camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray, 
 
 def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray,
                      e_c: np.ndarray, pixel_angle: np.ndarray, config: LimbEdgeConfig,
-                     jacobian: bool = False):
+                     jacobian: bool = False, phase_slope: np.ndarray | None = None):
     """Move threshold-edge pixels to the fraction-of-peak crossing of the limb profile.
 
     Parameters
@@ -403,6 +443,8 @@ def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, r
 
     jacobian : also return the (m, 3, 2) Jacobian d ray / d uv of the moved pixels
         (`vision.camera.unproject_jacobian`, computed with the rays in one call; NaN where not ok).
+    phase_slope : (m,) d ln P / ds [1/px] of the scattering phase function along each profile
+        (`phase_slope`); the profile is divided by it before the peak and the crossing are taken.
 
     Returns
     -------
@@ -413,7 +455,7 @@ def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, r
     m = uv.shape[0]
     n = _profile_normals(camera, uv, rays_c, e_c, pixel_angle)
     s = np.arange(-config.space_px, config.search_px + 1, dtype=float)
-    sc, ok = _profile_crossings(image, uv, n, s, config)
+    sc, ok = _profile_crossings(image, uv, n, s, config, phase_slope)
     uv_new = uv + np.where(ok, sc, 0.0)[:, None] * n
     rays_new = rays_c.copy()
     J_new = np.full((m, 3, 2), np.nan) if jacobian else None
@@ -673,12 +715,13 @@ def profile_height_shift(mu_s: np.ndarray, dmu_dh: np.ndarray, fraction: float =
 
 
 @numba.njit(cache=True)
-def _flank_residual(h0, L, w, dh, mu, n, A, H, C, R):
-    """Weighted least-squares misfit of ``L = K g(h0 + dh_k; mu_k) + b`` (K, b solved in closed
-    form, the misfit from the same sums) over n samples. Returns (misfit, K, b)."""
+def _flank_residual(h0, L, w, dh, mu, ph, n, A, H, C, R):
+    """Weighted least-squares misfit of ``L = K ph_k g(h0 + dh_k; mu_k) + b`` (K, b solved in
+    closed form, the misfit from the same sums) over n samples; ph the phase function relative to
+    the edge pixel's. Returns (misfit, K, b)."""
     sgg = sg = sw = sgl = sl = sll = 0.0
     for k in range(n):
-        g = _limb_radiance(h0 + dh[k], mu[k], 0.0, 0.0, A, H, C, R)
+        g = ph[k] * _limb_radiance(h0 + dh[k], mu[k], 0.0, 0.0, A, H, C, R)
         wk = w[k]
         sgg += wk * g * g
         sg += wk * g
@@ -704,7 +747,7 @@ _FLANK_WEIGHT_FLOOR = 20.0
 
 
 @numba.njit(cache=True)
-def _flank_kernel(c, dh, mu, A, H, C, R, gamma, clip, keep, min_samples, min_top, out_h, out_rms):
+def _flank_kernel(c, dh, mu, phase, A, H, C, R, gamma, clip, keep, min_samples, min_top, out_h, out_rms):
     """Per profile (rows of c, dh, mu): the samples from space down to the first clipped one or
     the first maximum (at least ``min_top``) followed by a drop below ``keep`` times it (the
     ground side is not in the model), without those below ``_FLANK_MIN_LEVEL`` (the tone curve's
@@ -720,6 +763,7 @@ def _flank_kernel(c, dh, mu, A, H, C, R, gamma, clip, keep, min_samples, min_top
     w = np.empty(S)
     d = np.empty(S)
     u = np.empty(S)
+    ph = np.empty(S)
     ex = 2.0 * (gamma - 1.0)
     for i in range(m):
         out_h[i] = np.nan
@@ -745,6 +789,7 @@ def _flank_kernel(c, dh, mu, A, H, C, R, gamma, clip, keep, min_samples, min_top
             w[n] = 1.0 / max(ck, _FLANK_WEIGHT_FLOOR) ** ex
             d[n] = dh[i, k]
             u[n] = mu[i, k]
+            ph[n] = phase[i, k]
             n += 1
             top = max(top, ck)
         if not inside or n < min_samples or top < min_top:
@@ -752,7 +797,7 @@ def _flank_kernel(c, dh, mu, A, H, C, R, gamma, clip, keep, min_samples, min_top
         best, hb = np.inf, np.nan
         h = 6e3
         while h <= 100e3:
-            f = _flank_residual(h, L, w, d, u, n, A, H, C, R)[0]
+            f = _flank_residual(h, L, w, d, u, ph, n, A, H, C, R)[0]
             if f < best:
                 best, hb = f, h
             h += _FLANK_GRID
@@ -761,19 +806,19 @@ def _flank_kernel(c, dh, mu, A, H, C, R, gamma, clip, keep, min_samples, min_top
         gr = 0.6180339887498949
         lo, hi = hb - _FLANK_GRID, hb + _FLANK_GRID
         x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-        f1 = _flank_residual(x1, L, w, d, u, n, A, H, C, R)[0]
-        f2 = _flank_residual(x2, L, w, d, u, n, A, H, C, R)[0]
+        f1 = _flank_residual(x1, L, w, d, u, ph, n, A, H, C, R)[0]
+        f2 = _flank_residual(x2, L, w, d, u, ph, n, A, H, C, R)[0]
         for _ in range(20):
             if f1 < f2:
                 hi, x2, f2 = x2, x1, f1
                 x1 = hi - gr * (hi - lo)
-                f1 = _flank_residual(x1, L, w, d, u, n, A, H, C, R)[0]
+                f1 = _flank_residual(x1, L, w, d, u, ph, n, A, H, C, R)[0]
             else:
                 lo, x1, f1 = x1, x2, f2
                 x2 = lo + gr * (hi - lo)
-                f2 = _flank_residual(x2, L, w, d, u, n, A, H, C, R)[0]
+                f2 = _flank_residual(x2, L, w, d, u, ph, n, A, H, C, R)[0]
         h0 = 0.5 * (lo + hi)
-        f, K, b = _flank_residual(h0, L, w, d, u, n, A, H, C, R)
+        f, K, b = _flank_residual(h0, L, w, d, u, ph, n, A, H, C, R)
         if K > 0.0:
             out_h[i] = h0
             out_rms[i] = math.sqrt(f / n)
@@ -783,7 +828,8 @@ def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays
                   e_c: np.ndarray, pixel_angle: np.ndarray, R_ec: np.ndarray, x_e: np.ndarray,
                   sun_e: np.ndarray, config: LimbEdgeConfig, *, height_m: float = 18300.0,
                   scale_height_m: float = 8000.0, space_px: int = 15, min_samples: int = 15,
-                  min_top: float = 100.0, clip: float = 245.0, radius_m: float = 6371e3) -> np.ndarray:
+                  min_top: float = 100.0, clip: float = 245.0, radius_m: float = 6371e3,
+                  aerosol_weight: float = 0.0, aerosol_g: float = 0.75) -> np.ndarray:
     """Tangent height [m] of each edge pixel fitted on the *unsaturated* flank of its limb profile
     (a limb whose maximum the exposure clips: module docstring, case (a)).
 
@@ -796,8 +842,9 @@ def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays
     ``L = K g(h0 + dh) + b``: dh the samples' tangent heights relative to the pixel's
     (`tangent_height_sun` of their rays with the attitude R_ec, camera -> e; differences of
     heights, insensitive to its error), g with the Sun elevation at each sample's tangent point
-    (the twilight path of `profile_height_shift`) and tau from ``height_m`` as there, K (exposure
-    and phase) and b (the tone curve's black level) linear. Measured on rendered frames whose red
+    (the twilight path of `profile_height_shift`) and the phase function's change along the
+    profile (`phase_function` of each sample's scattering angle, ``aerosol_*``), tau from
+    ``height_m`` as there, K (exposure and phase) and b (the tone curve's black level) linear. Measured on rendered frames whose red
     limb maximum is clipped 2-4x: 0.4 km sd, 0.0 mean against the truth (docs/vision.md).
 
     Returns (m,) heights h0 [m] of the edge pixels; NaN where the profile leaves the image, has
@@ -818,6 +865,9 @@ def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays
     h, mu = tangent_height_sun(rays @ np.asarray(R_ec, dtype=float).T, x_e, sun_e)
     h = np.where(ok, h, np.nan).reshape(m, s.size)
     mu = mu.reshape(m, s.size)
+    sun_c = np.asarray(R_ec, dtype=float).T @ (np.asarray(sun_e, dtype=float) / np.linalg.norm(sun_e))
+    P = phase_function(rays @ sun_c, aerosol_weight, aerosol_g).reshape(m, s.size)
+    phase = P / P[:, space_px:space_px + 1]            # the phase function along each profile
     dh = h - h[:, space_px:space_px + 1]
     Qf = np.nan_to_num(Q, nan=-10.0).astype(np.float32)
     c = _bilinear(image, config.channel, Qf[..., 0], Qf[..., 1]).astype(float)
@@ -827,7 +877,7 @@ def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays
     A = math.exp(float(np.interp(np.log(sun_path_ratio(np.array([1.0]), H, radius_m)), lnc, lnu)[0]) + height_m / H)
     out_h = np.empty(m)
     out_rms = np.empty(m)
-    _flank_kernel(np.ascontiguousarray(c), np.ascontiguousarray(dh), np.ascontiguousarray(mu), A, H, C,
+    _flank_kernel(np.ascontiguousarray(c), np.ascontiguousarray(dh), np.ascontiguousarray(mu), phase, A, H, C,
                   float(radius_m), float(config.gamma), float(clip), 1.0 - config.min_drop,
                   int(min_samples), float(min_top), out_h, out_rms)
     return out_h
