@@ -342,7 +342,7 @@ def default_config(focal_px: float = 1110.0) -> VisionConfig:
     sun_spacing = search_line_spacing(focal_px, math.radians(0.5))
     earth = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, max_residual=4e-6, R_px2=0.18, L_px=300.0,
+        min_pixels=100, max_residual=4e-6, R_px2=0.2, L_px=300.0,
         atmosphere_m=45e3, atmosphere_sigma_m=7e3, ransac_threshold_px=4.0, min_inlier_fraction=0.5,
         score_rays=100, ransac_max_hypotheses=100, limb_fraction=0.5, limb_height_m=18300.0, limb_height_sigma_m=150.0,
         limb_min_sun_elev_deg=-3.0, limb_sun_path=True, limb_sun_path_sigma=0.05, limb_refit_threshold_px=2.0,
