@@ -75,7 +75,7 @@ from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
 from vision.covariance import direction_covariance, tangent_basis
 from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points, phase_slope,
-                         profile_height_shift, tangent_height_sun)
+                         profile_height_shift, tangent_height_sun, turn_towards)
 from vision.mask import PayloadMask
 from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
                           direction_and_radius, mirrored_direction, nadir_from_horizon)
@@ -446,7 +446,8 @@ class TargetResult:
     limb_path: str = ""       # Earth: "limb" (fraction-of-peak edge), "flank" (threshold edge with
     # heights fitted on the unsaturated profile flanks), "calibrated" (threshold edge
     # with d calibrated on the usable limb profiles), "" (threshold edge with atmosphere_m)
-    limb_d_m: float = math.nan  # calibrated effective thickness d_thr of the threshold edge [m]
+    limb_d_m: float = math.nan  # effective thickness of the threshold edge [m]: calibrated d_thr, or
+    # the mean height fitted on the profile flanks
 
 
 @dataclass
@@ -992,7 +993,7 @@ def _profile_correction(rays_e, h_t, mu, nadir_e, x_e, sun_e, dh_eq5, tc: Target
     a profile in the Earth's shadow)."""
     n = mu.size
     sub = np.unique(np.r_[np.arange(0, n, _PROFILE_STRIDE), n - 1])
-    turned = _turn_towards(rays_e[sub], nadir_e, np.full(sub.size, _PROFILE_STEP_RAD))
+    turned = turn_towards(rays_e[sub], nadir_e, _PROFILE_STEP_RAD)
     h_b, mu_b = tangent_height_sun(turned, x_e, sun_e)
     corr = profile_height_shift(mu[sub], (mu_b - mu[sub]) / (h_b - h_t[sub]), tc.limb_fraction,
                                 tc.limb_scale_height_m, tc.limb_height_m, min_drop) - dh_eq5[sub]
@@ -1053,20 +1054,23 @@ def _limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_st
         twi = float(np.mean(el < kn[-1]))
     if calibrate:
         return _calibrated_threshold_refit(tc, model_l, uv, rays_c, J, pa, e_c, rn[ok], ok, dh, used)
-    rays2, J2 = rn[ok], Jn[ok]
+    J2 = Jn[ok]
     thr = tc.limb_refit_threshold_px * pa[ok]
-    r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr)
+    rays2 = turn_towards(rn[ok], e_c, model_l.cone_angle_change(dh))
+    r = _refit_turned(model_l, rays2, e_c, thr)
     if r is not None and twilight:
         # twilight: the shifts again with the attitude tilted onto this first limb fit's nadir (a
         # Sun elevation a tenth of a degree off moves the predicted heights by ~0.15 km there, and
         # the threshold edge's nadir that tilted R_t is off by tenths of a degree)
         R_t2 = tilt_corrected_attitude(R_ec, model_l.to_camera(r[0].e_c), x_e)
-        dh = dh + (_sun_path_shifts(rn[ok], R_t2, e_c, x_e, sun_e, tc, lc, keep_all=True)[1] - dh_sun)
-        r = _refit_turned(model_l, _turn_towards(rays2, e_c, model_l.cone_angle_change(dh)), e_c, thr) or r
+        dh2 = dh + (_sun_path_shifts(rn[ok], R_t2, e_c, x_e, sun_e, tc, lc, keep_all=True)[1] - dh_sun)
+        rays3 = turn_towards(rn[ok], e_c, model_l.cone_angle_change(dh2))
+        r2 = _refit_turned(model_l, rays3, e_c, thr)
+        if r2 is not None:
+            r, rays2, dh = r2, rays3, dh2
     if r is None:
         return None
     fit, inl = r
-    rays2 = _turn_towards(rays2, e_c, model_l.cone_angle_change(dh))
     shift = float(np.mean(dh[inl]))
     sigma_d = math.sqrt(tc.limb_height_sigma_m**2 + (tc.limb_sun_path_sigma * shift)**2
                         + (twi * tc.limb_twilight_sigma_m)**2)
@@ -1092,13 +1096,6 @@ def _sun_path_shifts(rays_c, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdg
     return keep, dh[keep], np.arcsin(mu[keep]), bool(tc.limb_sun_path and np.any(low))
 
 
-def _turn_towards(rays: np.ndarray, e_c: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """Unit rays turned by ``delta`` [rad] towards the direction e_c (great circle through each)."""
-    t = e_c[None, :] - (rays @ e_c)[:, None] * rays
-    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
-    return np.cos(delta)[:, None] * rays + np.sin(delta)[:, None] * t
-
-
 def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c, J, pa, e_c, rays_limb,
                                 ok, dh, used):
     """Threshold edge calibrated with the usable limb profiles of the same frame
@@ -1115,7 +1112,7 @@ def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c
     d_i = tc.limb_height_m + model_l.height_change(model_l.cone_angle_change(dh) + a)
     d_thr = _median(d_i)
     mad = 1.4826 * _median(np.abs(d_i - d_thr))
-    rays2 = _turn_towards(rays_c, e_c, np.full(rays_c.shape[0], model_l.cone_angle_change(d_thr - tc.limb_height_m)))
+    rays2 = turn_towards(rays_c, e_c, model_l.cone_angle_change(d_thr - tc.limb_height_m))
     r = _refit_turned(model_l, rays2, e_c, tc.limb_refit_threshold_px * pa)
     if r is None:
         return None
@@ -1163,7 +1160,7 @@ def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: L
     if fin.sum() < tc.limb_flank_min_profiles:
         return None
     h_all = np.interp(np.arange(m), idx[fin], h[fin])
-    rays2 = _turn_towards(rays_c, e_c, model_l.cone_angle_change(h_all - tc.limb_height_m))
+    rays2 = turn_towards(rays_c, e_c, model_l.cone_angle_change(h_all - tc.limb_height_m))
     r = _refit_turned(model_l, rays2, e_c, tc.limb_refit_threshold_px * pa)
     if r is None:
         return None

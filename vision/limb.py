@@ -83,7 +83,9 @@ from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 
 _EARTH_A, _EARTH_B = _earth.A, _earth.B
 
-__all__ = ["LimbEdgeConfig", "limb_edge_points", "sun_elevation", "sun_path_ratio", "fraction_height_shift"]
+__all__ = ["LimbEdgeConfig", "limb_edge_points", "sun_elevation", "sun_path_ratio", "fraction_height_shift",
+           "profile_height_shift", "tangent_height_sun", "flank_heights", "phase_function", "phase_slope",
+           "turn_towards"]
 
 
 @dataclass(frozen=True)
@@ -406,25 +408,27 @@ def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, su
     nadir (docs/vision.md)."""
     s = np.asarray(sun_c, dtype=float)
     s = s / np.linalg.norm(s)
-    e = np.asarray(e_c, dtype=float)
-    t = e[None, :] - (rays_c @ e)[:, None] * rays_c
-    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
-    pa = np.asarray(pixel_angle, dtype=float)[:, None] * 10.0     # over 10 px: crossing to peak
-    turned = np.cos(pa) * rays_c + np.sin(pa) * t
+    turned = turn_towards(rays_c, e_c, 10.0 * np.asarray(pixel_angle, dtype=float))   # 10 px: crossing to peak
     return (np.log(phase_function(turned @ s, aerosol_weight, aerosol_g))
             - np.log(phase_function(rays_c @ s, aerosol_weight, aerosol_g))) / 10.0
+
+
+def turn_towards(rays: np.ndarray, e: np.ndarray, angle) -> np.ndarray:
+    """Unit rays (m, 3) turned by ``angle`` [rad] (scalar or (m,)) towards the direction e, each
+    along its great circle through e."""
+    e = np.asarray(e, dtype=float)
+    t = e[None, :] - (rays @ e)[:, None] * rays
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
+    a = np.broadcast_to(np.asarray(angle, dtype=float), (rays.shape[0],))[:, None]
+    return np.cos(a) * rays + np.sin(a) * t
 
 
 def _profile_normals(camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray, e_c: np.ndarray,
                      pixel_angle: np.ndarray) -> np.ndarray:
     """(m, 2) unit image directions of the limb profiles: from each edge pixel towards the body
     e_c (the image of the ray turned by one pixel angle towards it)."""
-    e = np.asarray(e_c, dtype=float)
-    t = e[None, :] - (rays_c @ e)[:, None] * rays_c
-    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
-    pa = np.asarray(pixel_angle, dtype=float)[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        q1 = project(camera, np.cos(pa) * rays_c + np.sin(pa) * t)
+        q1 = project(camera, turn_towards(rays_c, e_c, pixel_angle))
     n = q1 - uv
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     return n
@@ -581,6 +585,14 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     return -scale_height_m * (lnu_mu - lnu_1)
 
 
+def _tau_2c(fraction: float, scale_height_m: float, height_m: float, radius_m: float) -> float:
+    """``tau 2C`` (u at h = 0) from the overhead-Sun crossing height by eq. (5):
+    ``h_f(1) = H ln(tau 2C / u_f(c(1)))``."""
+    lnc, lnu = _uf_table(float(fraction))
+    c1 = sun_path_ratio(np.array([1.0]), scale_height_m, radius_m)
+    return math.exp(float(np.interp(np.log(c1), lnc, lnu)[0]) + height_m / scale_height_m)
+
+
 @numba.njit(cache=True)
 def _limb_radiance(h, mu_c, k, h_c, A, H, C, R):
     """Limb radiance over ``E P T_0`` at tangent height h (eq. (4) with ``u = A e^(-h/H)``,
@@ -703,9 +715,7 @@ def profile_height_shift(mu_s: np.ndarray, dmu_dh: np.ndarray, fraction: float =
     k = np.broadcast_to(np.asarray(dmu_dh, dtype=float), mu.shape).copy()
     H = float(scale_height_m)
     C = math.sqrt(math.pi * radius_m / (2.0 * H))
-    lnc, lnu = _uf_table(float(fraction))
-    c1 = sun_path_ratio(np.array([1.0]), H, radius_m)
-    A = math.exp(float(np.interp(np.log(c1), lnc, lnu)[0]) + height_m / H)
+    A = _tau_2c(fraction, H, height_m, radius_m)
     keep = 1.0 - float(min_drop)
     ref = _profile_crossing(1.0, 0.0, height_m, A, H, C, radius_m, fraction, keep)
     h0 = ref + fraction_height_shift(mu, fraction, H, radius_m)
@@ -873,8 +883,7 @@ def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays
     c = _bilinear(image, config.channel, Qf[..., 0], Qf[..., 1]).astype(float)
     H = float(scale_height_m)
     C = math.sqrt(math.pi * radius_m / (2.0 * H))
-    lnc, lnu = _uf_table(float(config.fraction))
-    A = math.exp(float(np.interp(np.log(sun_path_ratio(np.array([1.0]), H, radius_m)), lnc, lnu)[0]) + height_m / H)
+    A = _tau_2c(config.fraction, H, height_m, radius_m)
     out_h = np.empty(m)
     out_rms = np.empty(m)
     _flank_kernel(np.ascontiguousarray(c), np.ascontiguousarray(dh), np.ascontiguousarray(mu), phase, A, H, C,
