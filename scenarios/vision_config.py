@@ -34,7 +34,8 @@ _TARGET_KEYS = {"enabled", "min_pixels", "max_candidates", "score_rays", "fit_ra
                 "limb_fraction", "limb_channel", "limb_height_m", "limb_height_sigma_m",
                 "limb_min_sun_elev_deg", "limb_min_used", "limb_sun_path", "limb_scale_height_m", "limb_profile_below_deg",
                 "limb_sun_path_sigma", "limb_twilight_el_deg", "limb_twilight_dh_m",
-                "limb_twilight_sigma_m", "limb_refit_threshold_px", "limb_aerosol_weight", "limb_aerosol_g", "limb_flank_profiles", "limb_flank_min_profiles", "limb_flank_sigma_m",
+                "limb_twilight_sigma_m", "limb_refit_threshold_px", "limb_aerosol_weight", "limb_aerosol_g",
+                "limb_flank_profiles", "limb_flank_min_profiles", "limb_flank_sigma_m",
                 "limb_calibrate_below", "limb_calibrate_min_points",
                 "limb_calibrate_sigma_m"}
 #: target keys whose values must be integers
