@@ -238,7 +238,8 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     samples and a drop test within 0.1 % of its bound only (float32 power: results equal to the
     array version to its 1-ulp rounding). Returns the crossing offset sc (m,) [px along n_i] and
     ok (m,): inside the image, a drop after the peak, a crossing found, peak below ``clip``,
-    peak above bg + 1e-6 (all in float32 as the array version). ``slope`` (m,): d ln P / ds of
+    peak above bg + 1e-6 (all in float32 as the array version). ``s`` is uniformly spaced
+    (``np.arange``). ``slope`` (m,): d ln P / ds of
     the phase function along each profile [1/px] (`phase_slope`): the samples are divided by
     ``exp(slope s)`` (``exp(slope s / gamma)`` on the 8-bit scale) before the scan, the clip test
     stays on the raw samples; 0: the samples as they are."""
@@ -256,8 +257,13 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
         if not (math.isfinite(nx) and math.isfinite(ny)):
             continue
         b = slope[i] / gamma
+        # exp(-b s_k) by its recurrence over the uniform steps of s (one exp per profile: ~40 %
+        # of the kernel's time with an exp per sample; 67 products keep float64 to ~1e-14)
+        fk = math.exp(-b * s[0])
+        rk = math.exp(-b * (s[1] - s[0])) if S > 1 else 1.0
         for k in range(S):
-            f[k] = np.float32(1.0) if b == 0.0 else np.float32(math.exp(-b * s[k]))
+            f[k] = np.float32(fk)
+            fk *= rk
         xa, ya = _q32(u, s[0], nx), _q32(v, s[0], ny)
         xb, yb = _q32(u, s[S - 1], nx), _q32(v, s[S - 1], ny)
         safe = (0.5 <= xa <= w - 1.5 and 0.5 <= xb <= w - 1.5 and 0.5 <= ya <= h - 1.5
@@ -409,9 +415,35 @@ def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, su
     nadir (docs/vision.md)."""
     s = np.asarray(sun_c, dtype=float)
     s = s / np.linalg.norm(s)
-    turned = turn_towards(rays_c, e_c, 10.0 * np.asarray(pixel_angle, dtype=float))   # 10 px: crossing to peak
-    return (np.log(phase_function(turned @ s, aerosol_weight, aerosol_g))
-            - np.log(phase_function(rays_c @ s, aerosol_weight, aerosol_g))) / 10.0
+    r = np.ascontiguousarray(rays_c, dtype=float).reshape(-1, 3)
+    pa = np.broadcast_to(np.asarray(pixel_angle, dtype=float), (r.shape[0],))
+    out = np.empty(r.shape[0])
+    _phase_slope_kernel(r, np.asarray(e_c, dtype=float), np.ascontiguousarray(pa), s, float(aerosol_weight),
+                        float(aerosol_g), out)
+    return out
+
+
+@numba.njit(cache=True)
+def _phase(c, w, g):
+    """`phase_function` of one cosine."""
+    return (1.0 - w) * 0.75 * (1.0 + c * c) + w * (1.0 - g * g) / (1.0 + g * g - 2.0 * g * c) ** 1.5
+
+
+@numba.njit(cache=True)
+def _phase_slope_kernel(rays, e, pa, s, w, g, out):
+    """`phase_slope` per ray: the ray turned by 10 pixel angles towards e (`turn_towards`, same
+    expressions; 10 px: crossing to peak), ln P there minus ln P at the ray, per pixel."""
+    for i in range(rays.shape[0]):
+        r0, r1, r2 = rays[i, 0], rays[i, 1], rays[i, 2]
+        d = r0 * e[0] + r1 * e[1] + r2 * e[2]
+        t0, t1, t2 = e[0] - d * r0, e[1] - d * r1, e[2] - d * r2
+        tn = max(math.sqrt(t0 * t0 + t1 * t1 + t2 * t2), 1e-300)
+        a = 10.0 * pa[i]
+        ca, sa = math.cos(a), math.sin(a) / tn
+        q0, q1, q2 = ca * r0 + sa * t0, ca * r1 + sa * t1, ca * r2 + sa * t2
+        c_t = q0 * s[0] + q1 * s[1] + q2 * s[2]
+        c_r = r0 * s[0] + r1 * s[1] + r2 * s[2]
+        out[i] = (math.log(_phase(c_t, w, g)) - math.log(_phase(c_r, w, g))) / 10.0
 
 
 def turn_towards(rays: np.ndarray, e: np.ndarray, angle) -> np.ndarray:
@@ -579,13 +611,47 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     Measured on rendered frames (docs/vision.md): +0.6 km at 20 deg, +1.5 km at 8 deg, +4 km at
     2 deg elevation."""
     lnc, lnu = _uf_table(float(fraction))
-    c = sun_path_ratio(mu_s, scale_height_m, radius_m)
-    c1 = sun_path_ratio(np.array([1.0]), scale_height_m, radius_m)
-    lnu_mu = np.interp(np.log(np.maximum(c, 1e-300)), lnc, lnu)
-    lnu_1 = np.interp(np.log(c1), lnc, lnu)
-    return -scale_height_m * (lnu_mu - lnu_1)
+    mu = np.ascontiguousarray(mu_s, dtype=float)
+    out = np.empty(mu.shape)
+    # one kernel: sun_path_ratio and the table look-up (np.interp on its uniform ln c grid) were
+    # ~15 numpy calls, ~50 us per limb at 400 points
+    _fraction_shift_kernel(mu.reshape(-1), float(lnc[0]), float(lnc[1] - lnc[0]), lnu, float(scale_height_m),
+                           float(radius_m), out.reshape(-1))
+    return out
 
 
+@numba.njit(cache=True)
+def _ln_uf(lnc, lnc0, dlnc, lnu):
+    """np.interp(lnc, grid, lnu) on the uniform grid ``lnc0 + k dlnc`` (ends held)."""
+    n = lnu.shape[0]
+    x = (lnc - lnc0) / dlnc
+    if not x > 0.0:
+        return lnu[0]
+    if x >= n - 1:
+        return lnu[n - 1]
+    k = int(x)
+    f = x - k
+    return lnu[k] + f * (lnu[k + 1] - lnu[k])
+
+
+@numba.njit(cache=True)
+def _fraction_shift_kernel(mu, lnc0, dlnc, lnu, H, R, out):
+    """`fraction_height_shift` per point: c of `sun_path_ratio` (same expressions), ln u_f from the
+    table, minus its value with the Sun overhead."""
+    C = math.sqrt(math.pi * R / (2.0 * H))
+    c1 = 1.0 / math.sqrt(1.0 + 1.0 / (C * C)) / (2.0 * C)
+    ln1 = _ln_uf(math.log(c1), lnc0, dlnc, lnu)
+    for i in range(mu.shape[0]):
+        m = mu[i]
+        if m >= 0.0:
+            ch = 1.0 / math.sqrt(m * m + 1.0 / (C * C))
+        else:
+            ch = C * math.exp(min(R * m * m / (2.0 * H), 50.0)) * (1.0 + math.erf(abs(m) * C / math.sqrt(math.pi)))
+        c = ch / (2.0 * C)
+        out[i] = -H * (_ln_uf(math.log(max(c, 1e-300)), lnc0, dlnc, lnu) - ln1)
+
+
+@functools.lru_cache(maxsize=64)
 def _tau_2c(fraction: float, scale_height_m: float, height_m: float, radius_m: float) -> float:
     """``tau 2C`` (u at h = 0) from the overhead-Sun crossing height by eq. (5):
     ``h_f(1) = H ln(tau 2C / u_f(c(1)))``."""

@@ -103,6 +103,12 @@ def _limb_fraction(cam, mask, x_e, R_ec, d) -> float:
     return float(vis.sum()) / 720.0
 
 
+def _full_prior(r, R_ec) -> FramePrior:
+    """Position, attitude and the predicted Sun direction (ephemeris + attitude prior): the prior
+    the replay gives every frame."""
+    return FramePrior(r.x_e, R_ec, sun_c=R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e))
+
+
 def _stats(e) -> dict:
     e = np.asarray(e, float)
     if e.size == 0:
@@ -114,15 +120,13 @@ def _stats(e) -> dict:
 def _evaluate(look, times, fl, recs, cfg, mask):
     cam = fl.cameras[0].camera
     d = cfg.earth.atmosphere_m
-    out = dict(earth_err=[], earth_sig=[], sun_err=[], sun_sig=[], false_earth=0, no_horizon=0, false_sun=0,
+    out = dict(earth_err=[], earth_sig=[], earth_sun_in_view=[], sun_err=[], sun_sig=[], false_earth=0, no_horizon=0, false_sun=0,
                no_sun=0, miss=0, horizon=0, base_err=[], frames=0)
     rng = np.random.default_rng(0)
     for r, jpg, tr in _frames(look, times, fl, recs):
         img = decode_frame(jpg)    # the replay's decoder (scenarios/jpeg.py)
         R_ec = _pose(look, r)
-        sun_c = R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e)   # predicted Sun (ephemeris + attitude prior)
-        res = process_frame(img, cam, cfg, mask=mask, prior=FramePrior(r.x_e, R_ec, sun_c=sun_c), rng=rng,
-                            baseline=True)
+        res = process_frame(img, cam, cfg, mask=mask, prior=_full_prior(r, R_ec), rng=rng, baseline=True)
         out["frames"] += 1
         frac = _limb_fraction(cam, mask, r.x_e, R_ec, d)
         rec = res.record("earth")
@@ -137,6 +141,7 @@ def _evaluate(look, times, fl, recs, cfg, mask):
         if rec is not None and frac > 0.0:
             out["earth_err"].append(_ang(rec.e_c, tr["e_c_earth"]))
             out["earth_sig"].append(rec.sigma_deg)
+            out["earth_sun_in_view"].append(float(tr["sun_visible"]) > 0.0)
             b = res.targets["earth"].baseline_e_c
             if b is not None:
                 out["base_err"].append(_ang(b, tr["e_c_earth"]))
@@ -162,13 +167,15 @@ def _speed(bench, fl, recs, cfg, mask, n):
     best = None
     for r, jpg, tr in _frames("disturbed", range(61, 200, 3), fl, recs):
         img = decode_frame(jpg)    # the replay's decoder (scenarios/jpeg.py)
-        res = process_frame(img, cam, cfg, mask=mask, prior=FramePrior(r.x_e, r.R_ec))
+        res = process_frame(img, cam, cfg, mask=mask, prior=_full_prior(r, r.R_ec))
         if res.record("earth") is not None and res.record("sun") is not None:
             best = (r, jpg, img)
             break
     assert best is not None, "no rendered frame with both the Earth and the Sun found"
     r, jpg, img = best
-    prior = FramePrior(r.x_e, r.R_ec)
+    # the full prior the replay gives (position, attitude and the predicted Sun): with it the
+    # front end runs the limb steps (vision.limb) that the accuracy figures above include
+    prior = _full_prior(r, r.R_ec)
 
     def med(f, k):
         for _ in range(3):
@@ -196,9 +203,17 @@ def _speed(bench, fl, recs, cfg, mask, n):
         for k, v in res.timings.items():
             stages.setdefault(k, []).append(v)
     t_vis = 1e3 * float(np.median(tot))
+    # beside the one frame: the median over every 10th second of both cameras (disturbed look),
+    # each frame's own median of 5 runs: what a replay pays per frame
+    per = []
+    for r2, jpg2, _ in _frames("disturbed", range(61, 431, 10), fl, recs):
+        img2, prior2 = decode_frame(jpg2), _full_prior(r2, r2.R_ec)
+        per.append(med(lambda: process_frame(img2, cam, cfg, mask=mask, prior=prior2, rng=rng), 5))
     bench("vision.jpeg_decode_1080p_ms", t_dec, "ms", opencv_imdecode_ms=t_dec_cv)
     bench("vision.ms_per_frame", t_vis, "ms", baseline=t_dec, ratio=t_vis / t_dec,
-          note="Earth + Sun, decoded 1920x1080 rendered frame, one core")
+          flight_sample_median_ms=float(np.median(per)), flight_sample_p90_ms=float(np.percentile(per, 90)),
+          flight_sample_frames=len(per),
+          note="Earth + Sun, decoded 1920x1080 rendered frame, full prior (limb steps on), one core")
     bench("vision.ratio_to_jpeg_decode", t_vis / t_dec, "ratio")
     for k, v in stages.items():
         if k != "total":
@@ -235,7 +250,18 @@ def test_bench_vision(bench, is_quick):
               f"false Sun {o['false_sun']}/{o['no_sun']}; Sun n {len(o['sun_err'])} RMS "
               f"{_stats(o['sun_err'])['rms']:.4f}; conic-fit baseline RMS {_stats(o['base_err'])['rms']:.3f}")
     clean, dist = res["clean"], res["disturbed"]
-    bench("vision.nadir_rms_deg_clean", _stats(clean["earth_err"])["rms"], "deg")
+    # the issue's "without clouds and Sun in view": the clean look's frames whose image does not
+    # hold the Sun (truth sun_visible = 0); with the Sun in the image the clean look removes only
+    # its disc, bloom, glare and flare, while the forward-scattering lobe around it stays in the
+    # sky and on the limb: those frames are reported beside it (the disturbed look has them all)
+    ce, sv = np.asarray(clean["earth_err"]), np.asarray(clean["earth_sun_in_view"], bool)
+    s_out, s_in, s_all = _stats(ce[~sv]), _stats(ce[sv]), _stats(ce)
+    print(f"\n[clean] Sun not in view: n {s_out['n']} mean {s_out['mean']:.4f} RMS {s_out['rms']:.4f} sigma "
+          f"{s_out['sigma']:.4f} p95 {s_out['p95']:.4f}; Sun in view (disc removed): n {s_in['n']} RMS {s_in['rms']:.4f}")
+    bench("vision.nadir_rms_deg_clean", s_out["rms"], "deg", n=s_out["n"], mean=s_out["mean"], sigma=s_out["sigma"],
+          p95=s_out["p95"], sun_in_view_rms=s_in["rms"], sun_in_view_n=s_in["n"], all_frames_rms=s_all["rms"],
+          all_frames_mean=s_all["mean"], all_frames_sigma=s_all["sigma"], all_frames_p95=s_all["p95"],
+          note="clean look (no clouds, no Sun disc/bloom/glare/flare), frames without the Sun in the image")
     bench("vision.nadir_rms_deg_disturbed", _stats(dist["earth_err"])["rms"], "deg",
           mean=_stats(dist["earth_err"])["mean"], sigma=_stats(dist["earth_err"])["sigma"],
           p95=_stats(dist["earth_err"])["p95"])
@@ -255,8 +281,14 @@ def test_bench_vision(bench, is_quick):
     err = np.concatenate([np.asarray(o["earth_err"]) for o in (clean, dist)])
     sig = np.concatenate([np.asarray(o["earth_sig"]) for o in (clean, dist)])
     cont = float(np.mean(err <= 3 * sig)) if err.size else math.nan
+    sub = {}
+    for look, o in (("clean", clean), ("disturbed", dist)):
+        e, g = np.asarray(o["earth_err"]), np.asarray(o["earth_sig"])
+        if e.size:
+            sub[f"{look}_containment"] = float(np.mean(e <= 3 * g))
+            sub[f"{look}_ratio_3sigma_to_rms"] = float(np.mean(3 * g) / np.sqrt(np.mean(e**2)))
     bench("vision.cov_3sigma_containment", cont, "fraction",
-          ratio_3sigma_to_rms=float(np.mean(3 * sig) / np.sqrt(np.mean(err**2))) if err.size else math.nan)
+          ratio_3sigma_to_rms=float(np.mean(3 * sig) / np.sqrt(np.mean(err**2))) if err.size else math.nan, **sub)
     bench("vision.conic_fit_baseline_rms_deg", _stats(dist["base_err"])["rms"], "deg",
           median=float(np.median(dist["base_err"])) if dist["base_err"] else math.nan)
     _speed(bench, fl, recs, cfg, mask, 20 if is_quick else 100)
