@@ -239,6 +239,27 @@ def test_phase_function_is_the_renderers():
         assert got == pytest.approx(want, rel=1e-12)
 
 
+def test_phase_slope_kernel_is_its_definition():
+    """`vision.limb.phase_slope` (one numba kernel) against its definition written with the numpy
+    pieces: ``(ln P(turned . s) - ln P(r . s)) / 10`` with ``turned = turn_towards(r, e, 10 pa)``
+    and `phase_function`, on random rays, pixel angles and Sun directions; equal to rounding
+    (1e-12 of the largest slope: both evaluate the same expressions in float64)."""
+    from vision.limb import phase_function, phase_slope, turn_towards
+    rng = np.random.default_rng(11)
+    for w, g in ((0.25, 0.75), (0.0, 0.75), (1.0, 0.5)):
+        r = rng.normal(size=(300, 3))
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        e = rng.normal(size=3)
+        e /= np.linalg.norm(e)
+        s = rng.normal(size=3) * 3.0          # not unit: phase_slope normalises it
+        pa = rng.uniform(4e-4, 2e-3, 300)
+        got = phase_slope(r, e, pa, s, w, g)
+        sn = s / np.linalg.norm(s)
+        t = turn_towards(r, e, 10.0 * pa)
+        want = (np.log(phase_function(t @ sn, w, g)) - np.log(phase_function(r @ sn, w, g))) / 10.0
+        assert np.max(np.abs(got - want)) <= 1e-12 * max(np.max(np.abs(want)), 1e-6)
+
+
 def test_limb_near_the_sun_with_the_phase_slope():
     """ATEK camera 2 at T+70 (ascent, 71 km up, the Sun 14-18 deg above the limb's tangent points
     on the side the camera looks): the aerosol lobe of the phase function brightens the limb

@@ -25,6 +25,22 @@ def _half_peak_height(el_deg: float) -> float:
     return float(h[j + int(np.argmax(b[j:] < 0.5 * b[j]))])
 
 
+def test_shift_kernel_is_eq5_with_the_table():
+    """`fraction_height_shift` (one numba kernel) against eq. (5) written with the numpy pieces:
+    ``-H (interp(ln c(mu)) - interp(ln c(1)))`` on the ``_uf_table`` grid with `sun_path_ratio`,
+    over day, grazing and twilight mu (down to the Earth's shadow) and a 2-D input shape; to
+    1e-6 m (the two interpolations differ by the rounding of the grid index only)."""
+    from vision.limb import _uf_table
+    mu = np.concatenate([np.linspace(-0.2, 1.0, 1202), [0.0, -1e-12, 1e-12]]).reshape(-1, 5)
+    for frac, H in ((0.5, 8000.0), (0.3, 7000.0)):
+        lnc, lnu = _uf_table(frac)
+        want = -H * (np.interp(np.log(np.maximum(sun_path_ratio(mu, H), 1e-300)), lnc, lnu)
+                     - np.interp(np.log(sun_path_ratio(np.array([1.0]), H)), lnc, lnu))
+        got = fraction_height_shift(mu, frac, H)
+        assert got.shape == mu.shape
+        assert np.max(np.abs(got - want)) < 1e-6
+
+
 @pytest.mark.parametrize("el", [30.0, 10.0, 5.0, 2.0, 0.5])
 def test_shift_matches_the_limb_radiance(el):
     """h_f(el) - h_f(90 deg) from eq. (5) equals the shift of the half-peak crossing of the
