@@ -77,7 +77,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.special import erf as _erf
 
 from nav import earth as _earth
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
@@ -400,9 +399,7 @@ def phase_function(cos_g, aerosol_weight: float = 0.0, aerosol_g: float = 0.75) 
     and a Henyey-Greenstein aerosol lobe ``(1 - g^2) / (1 + g^2 - 2 g cos)^(3/2)`` weighted by
     ``aerosol_weight`` (the renderer's atmosphere, `scenarios.render`)."""
     c = np.asarray(cos_g, dtype=float)
-    g = float(aerosol_g)
-    return ((1.0 - aerosol_weight) * 0.75 * (1.0 + c * c)
-            + aerosol_weight * (1.0 - g * g) / (1.0 + g * g - 2.0 * g * c) ** 1.5)
+    return _phase(c, float(aerosol_weight), float(aerosol_g))
 
 
 def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, sun_c: np.ndarray,
@@ -425,7 +422,7 @@ def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, su
 
 @numba.njit(cache=True)
 def _phase(c, w, g):
-    """`phase_function` of one cosine."""
+    """`phase_function` (a cosine or an array of them)."""
     return (1.0 - w) * 0.75 * (1.0 + c * c) + w * (1.0 - g * g) / (1.0 + g * g - 2.0 * g * c) ** 1.5
 
 
@@ -574,12 +571,27 @@ def sun_path_ratio(mu_s: np.ndarray, scale_height_m: float = 8000.0,
     (continuous at mu_s = 0; 2C exp(-hs/H) deep in twilight; below ``h = R mu_s^2/2`` the point is
     in the Earth's shadow)."""
     mu = np.asarray(mu_s, dtype=float)
-    C = math.sqrt(math.pi * radius_m / (2.0 * scale_height_m))
-    with np.errstate(over="ignore"):
-        ch = np.where(mu >= 0.0, 1.0 / np.sqrt(mu * mu + 1.0 / (C * C)),
-                      C * np.exp(np.minimum(radius_m * mu * mu / (2.0 * scale_height_m), 50.0))
-                      * (1.0 + _erf(np.abs(mu) * C / math.sqrt(math.pi))))
+    out = np.empty(mu.shape)
+    _sun_path_ratio_kernel(np.ascontiguousarray(mu.reshape(-1)), float(scale_height_m), float(radius_m),
+                           out.reshape(-1))
+    return out
+
+
+@numba.njit(cache=True)
+def _sun_path_ratio1(m, H, R):
+    """`sun_path_ratio` of one mu_s (the expressions of its docstring)."""
+    C = math.sqrt(math.pi * R / (2.0 * H))
+    if m >= 0.0:
+        ch = 1.0 / math.sqrt(m * m + 1.0 / (C * C))
+    else:
+        ch = C * math.exp(min(R * m * m / (2.0 * H), 50.0)) * (1.0 + math.erf(abs(m) * C / math.sqrt(math.pi)))
     return ch / (2.0 * C)
+
+
+@numba.njit(cache=True)
+def _sun_path_ratio_kernel(mu, H, R, out):
+    for i in range(mu.shape[0]):
+        out[i] = _sun_path_ratio1(mu[i], H, R)
 
 
 @functools.lru_cache(maxsize=16)
@@ -611,11 +623,11 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     Measured on rendered frames (docs/vision.md): +0.6 km at 20 deg, +1.5 km at 8 deg, +4 km at
     2 deg elevation."""
     lnc, lnu = _uf_table(float(fraction))
-    mu = np.ascontiguousarray(mu_s, dtype=float)
+    mu = np.asarray(mu_s, dtype=float)
     out = np.empty(mu.shape)
     # one kernel: sun_path_ratio and the table look-up (np.interp on its uniform ln c grid) were
     # ~15 numpy calls, ~50 us per limb at 400 points
-    _fraction_shift_kernel(mu.reshape(-1), float(lnc[0]), float(lnc[1] - lnc[0]), lnu, float(scale_height_m),
+    _fraction_shift_kernel(np.ascontiguousarray(mu.reshape(-1)), float(lnc[0]), float(lnc[1] - lnc[0]), lnu, float(scale_height_m),
                            float(radius_m), out.reshape(-1))
     return out
 
@@ -636,18 +648,11 @@ def _ln_uf(lnc, lnc0, dlnc, lnu):
 
 @numba.njit(cache=True)
 def _fraction_shift_kernel(mu, lnc0, dlnc, lnu, H, R, out):
-    """`fraction_height_shift` per point: c of `sun_path_ratio` (same expressions), ln u_f from the
-    table, minus its value with the Sun overhead."""
-    C = math.sqrt(math.pi * R / (2.0 * H))
-    c1 = 1.0 / math.sqrt(1.0 + 1.0 / (C * C)) / (2.0 * C)
-    ln1 = _ln_uf(math.log(c1), lnc0, dlnc, lnu)
+    """`fraction_height_shift` per point: c of `sun_path_ratio`, ln u_f from the table, minus its
+    value with the Sun overhead."""
+    ln1 = _ln_uf(math.log(_sun_path_ratio1(1.0, H, R)), lnc0, dlnc, lnu)
     for i in range(mu.shape[0]):
-        m = mu[i]
-        if m >= 0.0:
-            ch = 1.0 / math.sqrt(m * m + 1.0 / (C * C))
-        else:
-            ch = C * math.exp(min(R * m * m / (2.0 * H), 50.0)) * (1.0 + math.erf(abs(m) * C / math.sqrt(math.pi)))
-        c = ch / (2.0 * C)
+        c = _sun_path_ratio1(mu[i], H, R)
         out[i] = -H * (_ln_uf(math.log(max(c, 1e-300)), lnc0, dlnc, lnu) - ln1)
 
 
