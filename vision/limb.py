@@ -428,16 +428,11 @@ def _phase(c, w, g):
 
 @numba.njit(cache=True)
 def _phase_slope_kernel(rays, e, pa, s, w, g, out):
-    """`phase_slope` per ray: the ray turned by 10 pixel angles towards e (`turn_towards`, same
-    expressions; 10 px: crossing to peak), ln P there minus ln P at the ray, per pixel."""
+    """`phase_slope` per ray: the ray turned by 10 pixel angles towards e (`_turn1`; 10 px:
+    crossing to peak), ln P there minus ln P at the ray, per pixel."""
     for i in range(rays.shape[0]):
         r0, r1, r2 = rays[i, 0], rays[i, 1], rays[i, 2]
-        d = r0 * e[0] + r1 * e[1] + r2 * e[2]
-        t0, t1, t2 = e[0] - d * r0, e[1] - d * r1, e[2] - d * r2
-        tn = max(math.sqrt(t0 * t0 + t1 * t1 + t2 * t2), 1e-300)
-        a = 10.0 * pa[i]
-        ca, sa = math.cos(a), math.sin(a) / tn
-        q0, q1, q2 = ca * r0 + sa * t0, ca * r1 + sa * t1, ca * r2 + sa * t2
+        q0, q1, q2 = _turn1(r0, r1, r2, e, 10.0 * pa[i])
         c_t = q0 * s[0] + q1 * s[1] + q2 * s[2]
         c_r = r0 * s[0] + r1 * s[1] + r2 * s[2]
         out[i] = (math.log(_phase(c_t, w, g)) - math.log(_phase(c_r, w, g))) / 10.0
@@ -446,11 +441,28 @@ def _phase_slope_kernel(rays, e, pa, s, w, g, out):
 def turn_towards(rays: np.ndarray, e: np.ndarray, angle) -> np.ndarray:
     """Unit rays (m, 3) turned by ``angle`` [rad] (scalar or (m,)) towards the direction e, each
     along its great circle through e."""
-    e = np.asarray(e, dtype=float)
-    t = e[None, :] - (rays @ e)[:, None] * rays
-    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
-    a = np.broadcast_to(np.asarray(angle, dtype=float), (rays.shape[0],))[:, None]
-    return np.cos(a) * rays + np.sin(a) * t
+    r = np.ascontiguousarray(rays, dtype=float).reshape(-1, 3)
+    a = np.ascontiguousarray(np.broadcast_to(np.asarray(angle, dtype=float), (r.shape[0],)))
+    out = np.empty_like(r)
+    _turn_kernel(r, np.asarray(e, dtype=float), a, out)
+    return out
+
+
+@numba.njit(cache=True)
+def _turn1(r0, r1, r2, e, a):
+    """One unit ray turned by ``a`` towards e (`turn_towards`): ``cos a r + sin a t``, t the unit
+    tangent towards e."""
+    d = r0 * e[0] + r1 * e[1] + r2 * e[2]
+    t0, t1, t2 = e[0] - d * r0, e[1] - d * r1, e[2] - d * r2
+    tn = max(math.sqrt(t0 * t0 + t1 * t1 + t2 * t2), 1e-300)
+    ca, sa = math.cos(a), math.sin(a)
+    return ca * r0 + sa * (t0 / tn), ca * r1 + sa * (t1 / tn), ca * r2 + sa * (t2 / tn)
+
+
+@numba.njit(cache=True)
+def _turn_kernel(rays, e, a, out):
+    for i in range(rays.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = _turn1(rays[i, 0], rays[i, 1], rays[i, 2], e, a[i])
 
 
 def _profile_normals(camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray, e_c: np.ndarray,
@@ -627,8 +639,8 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     out = np.empty(mu.shape)
     # one kernel: sun_path_ratio and the table look-up (np.interp on its uniform ln c grid) were
     # ~15 numpy calls, ~50 us per limb at 400 points
-    _fraction_shift_kernel(np.ascontiguousarray(mu.reshape(-1)), float(lnc[0]), float(lnc[1] - lnc[0]), lnu, float(scale_height_m),
-                           float(radius_m), out.reshape(-1))
+    _fraction_shift_kernel(np.ascontiguousarray(mu.reshape(-1)), float(lnc[0]), float(lnc[1] - lnc[0]), lnu,
+                           float(scale_height_m), float(radius_m), out.reshape(-1))
     return out
 
 
