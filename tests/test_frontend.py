@@ -311,7 +311,8 @@ def test_earth_gate_rejects_a_nadir_far_from_the_predicted_one(geo_frames):
             assert angle_deg(rec.e_c, e_true) < 0.01 + 2 * earth.F * psi_deg   # measured 0.07 at 15 deg
         else:
             assert rec is None
-            assert "from the predicted nadir > gate_deg 10" in res.reasons["earth"], res.reasons["earth"]
+            # rejected by the gate pre-filter (no limb within the gate) or after the fit
+            assert "gate_deg 10" in res.reasons["earth"], res.reasons["earth"]
     # the true prior passes the default gate
     res = process_frame(fr.image, CAM, cfg, prior=FramePrior(x, R), rng=np.random.default_rng(1))
     assert res.record("earth") is not None and cfg.earth.gate_deg == 10.0

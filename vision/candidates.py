@@ -271,7 +271,8 @@ class Detection:
 
 
 def detect(image, config: DetectionConfig = DetectionConfig(), mask: PayloadMask | None = None,
-           expected_shape: tuple[int, int] | None = None, hist: np.ndarray | None = None) -> Detection:
+           expected_shape: tuple[int, int] | None = None, hist: np.ndarray | None = None,
+           rows: np.ndarray | None = None) -> Detection:
     """Detection stage for one target: frame -> brightness gate -> threshold -> edge search ->
     candidates (003 §3.1, §5; 004 §2.2.1-2.2.3).
 
@@ -284,6 +285,8 @@ def detect(image, config: DetectionConfig = DetectionConfig(), mask: PayloadMask
     hist : ``brightness_histogram(image, config.binarize.sample_step)`` of this frame if already
         computed (the Earth and Sun detections of one frame share it: it reads ~0.8 MB of the
         frame), else None.
+    rows : search-line rows to scan instead of ``config.search``'s raster (e.g. the rows of that
+        raster that can meet a body near its predicted direction), or None.
     """
     a = as_frame(image, expected_shape)
     if mask is not None:
@@ -298,7 +301,7 @@ def detect(image, config: DetectionConfig = DetectionConfig(), mask: PayloadMask
     if not gate.accepted:
         return Detection([], None, float("nan"), gate.brightness, gate.reason)
     t = resolve_threshold(a, bc, hist)
-    borders = find_borders(a, t, mask, config.search)
+    borders = find_borders(a, t, mask, config.search, rows=rows)
     if borders.overflow:
         return Detection([], borders, t, gate.brightness,
                          f"edge search stopped after {config.search.max_points} border pixels "

@@ -157,25 +157,41 @@ def direction_covariance(rays_c: np.ndarray, jac: np.ndarray, n: np.ndarray, R: 
         raise ValueError(f"direction_covariance: R = {R}; expected a finite variance >= 0 [px^2]")
     if not L >= 1.0:
         raise ValueError(f"direction_covariance: L = {L} px; expected >= 1 (003 eq. (35))")
+    if method not in ("linear", "constrained"):
+        raise ValueError(f"direction_covariance: method {method!r}; expected 'linear' or 'constrained'")
     rho = 1.0 - 1.0 / L
     S0, N = _normal_matrices(np.ascontiguousarray(H), np.ascontiguousarray(J), n, rho)
+    Tb = tangent_basis(n) if method == "constrained" else np.zeros((3, 2))
+    P_n, P_c, lam = _covariance_from_normal(S0, N, n, float(R), method == "constrained", Tb)
+    return DirectionCovariance(P_n=P_n, P_c=P_c, P_sphere=lam * np.eye(3), lambda_max=lam)
+
+
+@numba.njit(cache=True)
+def _covariance_from_normal(S0, N, n, R, constrained, Tb):  # pragma: no cover - numba
+    """P_n, P_c and the largest eigenvalue of P_c from the sums of `_normal_matrices` (the
+    3x3 algebra of `direction_covariance`: eq. (33) with the projector onto the tangent plane, or
+    the constrained form in the tangent basis Tb of e = n/|n|; ~12 small numpy calls otherwise)."""
     S = R * S0
     S = 0.5 * (S + S.T)
-    nn = float(np.linalg.norm(n))
+    nn = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
     e = n / nn
-    if method == "linear":
+    if constrained:
+        TbT = np.ascontiguousarray(Tb.T)
+        Mi = np.linalg.inv(TbT @ N @ Tb)
+        P_c = Tb @ Mi @ (TbT @ S @ Tb) @ Mi @ TbT
+        P_n = P_c.copy()
+    else:
         Ninv = np.linalg.inv(N)
         P_n = Ninv @ S @ Ninv
         Pi = np.eye(3) - np.outer(e, e)
-        P_c = Pi @ P_n @ Pi / nn**2
-    elif method == "constrained":
-        Tb = tangent_basis(e)
-        Mi = np.linalg.inv(Tb.T @ N @ Tb)
-        P_c = Tb @ Mi @ (Tb.T @ S @ Tb) @ Mi @ Tb.T
-        P_n = P_c
-    else:
-        raise ValueError(f"direction_covariance: method {method!r}; expected 'linear' or 'constrained'")
+        P_c = Pi @ P_n @ Pi / (nn * nn)
     P_n = 0.5 * (P_n + P_n.T)
     P_c = 0.5 * (P_c + P_c.T)
-    lam = float(np.linalg.eigvalsh(P_c)[-1])
-    return DirectionCovariance(P_n=P_n, P_c=P_c, P_sphere=lam * np.eye(3), lambda_max=lam)
+    return P_n, P_c, largest_eigenvalue(P_c)
+
+
+@numba.njit(cache=True)
+def largest_eigenvalue(P):  # pragma: no cover - numba
+    """Largest eigenvalue of a symmetric matrix (``np.linalg.eigvalsh(P)[-1]`` without numpy's
+    per-call overhead; the radius of the spherical overbound, 003 eq. (37))."""
+    return np.linalg.eigvalsh(P)[-1]

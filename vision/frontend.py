@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -70,10 +71,10 @@ import numba
 import numpy as np
 
 from vision.binarize import BinarizeConfig, as_frame, brightness_histogram
-from vision.borders import SearchConfig, search_line_spacing
+from vision.borders import SearchConfig, search_line_spacing, search_rows
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
 from vision.candidates import Candidate, Detection, DetectionConfig, detect
-from vision.covariance import direction_covariance, tangent_basis
+from vision.covariance import direction_covariance, largest_eigenvalue, tangent_basis
 from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points, phase_slope,
                          profile_height_shift, tangent_height_sun, turn_towards)
 from vision.mask import PayloadMask
@@ -476,12 +477,27 @@ class FrameResult:
 def _subsample(m: int, k: int) -> np.ndarray:
     """At most k indices spread evenly over 0..m-1 (edge order kept). Cached per (m, k) (the
     same edge lengths recur from frame to frame); the returned array is read-only."""
-    if m <= k:
-        idx = np.arange(m)
-    else:
-        idx = np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))
+    idx = np.arange(m) if m <= k else _spread_indices(m, k)
     idx.flags.writeable = False
     return idx
+
+
+@numba.njit(cache=True)
+def _spread_indices(m, k):  # pragma: no cover - numba
+    """``np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))`` for m > k > 1 (the same
+    arithmetic: i * step, the last value exactly m - 1, round half to even; the step exceeds 1,
+    so the rounded values are distinct and no sort is needed, but repeats are skipped anyway);
+    np.unique and np.linspace cost ~20 us a call, and edge lengths change from frame to frame."""
+    step = (m - 1) / (k - 1)
+    out = np.empty(k, np.int64)
+    n = 0
+    for i in range(k):
+        x = np.rint(i * step) if i < k - 1 else np.float64(m - 1)
+        j = np.int64(x)
+        if n == 0 or j > out[n - 1]:
+            out[n] = j
+            n += 1
+    return out[:n]
 
 
 def _median(x: np.ndarray) -> float:
@@ -504,15 +520,46 @@ def conic_polyline(camera: FisheyeCamera, e_c: np.ndarray, alpha: float, n: int 
     lens's range or behind the camera. With ``model`` the cone is taken in its fit frame
     (e_c the fit-frame direction) and mapped back into the camera."""
     e = np.asarray(e_c, float)
-    u = tangent_basis(e)
-    psi = np.linspace(0.0, 2 * math.pi, n)
-    rays = math.cos(alpha) * e + math.sin(alpha) * (np.cos(psi)[:, None] * u[:, 0] + np.sin(psi)[:, None] * u[:, 1])
+    rays = math.cos(alpha) * e + math.sin(alpha) * (_unit_circle(n) @ tangent_basis(e).T)
     if model is not None and model.kind != "sphere":
         rays = rays @ model.M_inv.T
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         uv = project(camera, rays)
     return uv
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_circle(n: int) -> np.ndarray:
+    """(n, 2) [cos psi, sin psi] at n angles from 0 to 2 pi (both ends), read-only."""
+    psi = np.linspace(0.0, 2 * math.pi, n)
+    c = np.stack([np.cos(psi), np.sin(psi)], axis=1)
+    c.flags.writeable = False
+    return c
+
+
+def gate_search_rows(camera: FisheyeCamera, predicted: np.ndarray, angle: float,
+                     search: SearchConfig) -> np.ndarray | None:
+    """The rows of ``search``'s raster (003 §5) that can meet a body whose whole disc lies within
+    ``angle`` [rad] of the ``predicted`` unit direction (gate + largest apparent radius): those
+    between the top and bottom of that cap's image (a disc inside the cap crosses the same raster
+    rows as before; the frame border is searched as always). None (the whole raster) when the cap
+    reaches beyond the lens's range but not wholly; no rows when it lies wholly beyond it.
+
+    The image of a cap inside the lens's range is bounded by the image of its rim (the projection
+    is a diffeomorphism there), sampled at 64 points: between samples the rim bulges by
+    <= r (1 - cos(pi / 64)) ~ 1e-3 r, r <= 1000 px, inside the 2 px margin.
+    """
+    rows = search_rows(camera.height, search.line_spacing_px, search.line_offset_px)
+    if rows.size == 0 or not 0.0 < angle < math.pi / 2:
+        return None
+    off_axis = math.acos(max(-1.0, min(1.0, float(predicted[2]))))
+    if off_axis - angle > camera.max_theta:
+        return rows[:0]
+    if off_axis + angle >= camera.max_theta:
+        return None
+    v = conic_polyline(camera, predicted, angle, 64)[:, 1]
+    return rows[(rows >= v.min() - 2.0) & (rows <= v.max() + 2.0)]
 
 
 def _in_image(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
@@ -827,9 +874,28 @@ def _alpha_sensitivity(H: np.ndarray, e: np.ndarray, alpha: float) -> np.ndarray
     """d e / d alpha of the constrained fit (linearised normal equations in the tangent plane at
     e: x = (T^T N T)^-1 T^T H^T (c 1 - H e), c = cos(alpha), so de/dc = T (T^T N T)^-1 T^T H^T 1)."""
     T = tangent_basis(e)
-    A = H @ T
-    dx_dc = np.linalg.solve(A.T @ A, A.T @ np.ones(H.shape[0]))
-    return (T @ dx_dc) * (-math.sin(alpha))
+    return _alpha_sensitivity_kernel(np.ascontiguousarray(H, dtype=float), T, math.sin(alpha))
+
+
+@numba.njit(cache=True)
+def _alpha_sensitivity_kernel(H, T, sin_alpha):  # pragma: no cover - numba
+    """`_alpha_sensitivity`: A = H T, the 2x2 normal equations A^T A x = A^T 1 by Cramer's rule."""
+    a00 = a01 = a11 = b0 = b1 = 0.0
+    for j in range(H.shape[0]):
+        x = H[j, 0] * T[0, 0] + H[j, 1] * T[1, 0] + H[j, 2] * T[2, 0]
+        y = H[j, 0] * T[0, 1] + H[j, 1] * T[1, 1] + H[j, 2] * T[2, 1]
+        a00 += x * x
+        a01 += x * y
+        a11 += y * y
+        b0 += x
+        b1 += y
+    det = a00 * a11 - a01 * a01
+    x0 = (a11 * b0 - a01 * b1) / det
+    x1 = (a00 * b1 - a01 * b0) / det
+    out = np.empty(3)
+    for c in range(3):
+        out[c] = (T[c, 0] * x0 + T[c, 1] * x1) * (-sin_alpha)
+    return out
 
 
 # -------------------------------------------------------------------------------------------------
@@ -844,8 +910,52 @@ class _Consensus:
     inliers: np.ndarray
 
 
+_RNG = threading.local()
+
+
+def _candidate_rng(frame_seed: int, cand: Candidate) -> np.random.Generator:
+    """RANSAC generator of one candidate, seeded by the frame's seed and the candidate itself
+    (length, first pixel): its draws do not depend on which other candidates of the frame were
+    scored before it (a change of the candidate order, or a candidate skipped by a cheaper test,
+    leaves every other fit as it was).
+
+    One PCG64 generator per thread, its 128-bit state set from a hash of those numbers (Python's
+    tuple-of-int hash: the same in every process); seeding a new generator through numpy's
+    SeedSequence costs ~10 us per candidate, this ~1 us."""
+    g = getattr(_RNG, "generator", None)
+    if g is None:
+        g = _RNG.generator = np.random.Generator(np.random.PCG64(0))
+    u0, v0 = cand.points[0].tolist()
+    h = hash((frame_seed, cand.n_pixels, int(u0), int(v0))) & 0xFFFFFFFFFFFFFFFF
+    g.bit_generator.state = {"bit_generator": "PCG64",
+                             "state": {"state": (h * 0x9E3779B97F4A7C15F39CC0605CEDC835) & (2**128 - 1),
+                                       "inc": 0xDA3E39CB94B95BDB},
+                             "has_uint32": 0, "uinteger": 0}
+    return g
+
+
+def _gate_reachable(H: np.ndarray, predicted: np.ndarray, alpha: float | None, reach: float, need: int) -> bool:
+    """Can a fit of these rays pass the gate? At least ``need`` rays (the fewest inliers of an
+    accepted fit) must lie within ``reach`` [rad] of a cone of half-angle ``alpha`` about
+    ``predicted`` (Earth: | angle - alpha | <= reach), or within ``reach`` of ``predicted``
+    itself (Sun/Moon, ``alpha`` None; their inliers lie within gate + alpha_max + threshold)."""
+    return _count_near(H, predicted, -1.0 if alpha is None else alpha, reach) >= need
+
+
+@numba.njit(cache=True)
+def _count_near(H, p, alpha, reach):  # pragma: no cover - numba
+    """Rays within ``reach`` of the cone (p, alpha), or of p itself when alpha < 0."""
+    n = 0
+    for j in range(H.shape[0]):
+        c = H[j, 0] * p[0] + H[j, 1] * p[1] + H[j, 2] * p[2]
+        d = math.acos(-1.0 if c < -1.0 else (1.0 if c > 1.0 else c))
+        if (d <= reach) if alpha < 0.0 else (abs(d - alpha) <= reach):
+            n += 1
+    return n
+
+
 def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: TargetConfig,
-                     model: LimbModel | None, rng, predicted: np.ndarray | None = None) -> CandidateResult:
+                     model: LimbModel | None, frame_seed: int, predicted: np.ndarray | None = None) -> CandidateResult:
     res = CandidateResult(index=k, n_pixels=cand.n_pixels)
     if cand.n_pixels < tc.min_pixels:
         res.reason = f"{cand.n_pixels} pixels < min_pixels {tc.min_pixels}"
@@ -862,6 +972,18 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     thr = tc.ransac_threshold_px * pa
     H = rays_c if model is None else model.to_fit(rays_c)
     alpha = None if model is None else model.alpha - tc.edge_offset_px * _median(pa)
+    min_inliers = max(3, int(math.ceil(tc.min_inlier_fraction * H.shape[0])))
+    if predicted is not None:
+        # gate pre-filter: an accepted fit lies within gate_deg of the prediction and has at
+        # least min_inliers rays within the threshold of its cone (the direct fit: 95 %). Earth:
+        # in the fit frame, +1 deg for its mapping (< 0.2 deg) and a mirrored refit's spread
+        p = predicted if model is None else model.to_fit(predicted)
+        reach = math.radians(tc.gate_deg + (tc.alpha_max_deg if model is None else 1.0)) + float(thr.max())
+        if not _gate_reachable(H, p / np.linalg.norm(p), alpha, reach, min_inliers):
+            res.reason = (f"gate: fewer than {min_inliers} of {H.shape[0]} pixels can lie on a "
+                          f"{'disc' if model is None else 'limb'} within gate_deg {tc.gate_deg:g} "
+                          f"of the predicted direction")
+            return res
     # curvature pre-filter: no triple of pixels spread along the edge lies on a circle of the
     # expected angular radius -> not this body's limb (saves the RANSAC on glare/cloud edges)
     rho = _triple_radii(H)
@@ -888,10 +1010,9 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
         rr = None
     try:
         if rr is None or rr.inliers.sum() < 3:
-            rr = ransac_cone(H, rng, alpha=alpha, threshold=thr, confidence=tc.ransac_confidence,
-                             max_hypotheses=tc.ransac_max_hypotheses, n_preverify=4,
-                         batch=tc.ransac_max_hypotheses,
-                             min_inliers=max(3, int(math.ceil(tc.min_inlier_fraction * H.shape[0]))))
+            rr = ransac_cone(H, _candidate_rng(frame_seed, cand), alpha=alpha, threshold=thr,
+                             confidence=tc.ransac_confidence, max_hypotheses=tc.ransac_max_hypotheses,
+                             n_preverify=4, batch=tc.ransac_max_hypotheses, min_inliers=min_inliers)
     except ValueError as exc:
         res.reason = f"no cone: {exc}"
         return res
@@ -957,17 +1078,16 @@ def _conic_passes_image(camera: FisheyeCamera, e_fit: np.ndarray, alpha: float, 
     First the one cone ray nearest the mean inlier ray (the usual case: the inliers lie on the
     conic, inside the image; one projection), else 90 rays around the whole cone."""
     e = np.asarray(e_fit, dtype=float)
-    r = H_inl.mean(axis=0) if H_inl.shape[0] else e
+    r = H_inl.sum(axis=0) if H_inl.shape[0] else e
     t = r - (r @ e) * e
-    nt = float(np.linalg.norm(t))
+    nt = math.sqrt(float(t @ t))
     if nt > 1e-12:
         p = math.cos(alpha) * e + (math.sin(alpha) / nt) * t
         if model is not None and model.kind != "sphere":
             p = model.M_inv @ p
-            p /= np.linalg.norm(p)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            if _in_image(camera, project(camera, p[None, :]))[0]:
-                return True
+        u, v = project(camera, p[None, :])[0].tolist()   # NaN (beyond the lens's range) fails
+        if -0.5 <= u <= camera.width - 0.5 and -0.5 <= v <= camera.height - 0.5:
+            return True
     return bool(np.any(_in_image(camera, conic_polyline(camera, e, alpha, 90, model))))
 
 
@@ -1196,7 +1316,7 @@ def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: L
     return model_l, r[0], uv, rays2, J, r[1], sigma_d, used, 0.0, "flank", float(np.mean(h[fin]))
 
 
-def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, timings,
+def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_seed: int, timings,
                     baseline: bool, predicted: np.ndarray | None = None, limb=None,
                     hists: dict | None = None) -> TargetResult:
     t0 = time.perf_counter()
@@ -1207,7 +1327,10 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
         hist = hists.get(step)
         if hist is None:
             hist = hists[step] = brightness_histogram(as_frame(image, (camera.height, camera.width)), step)
-    det = detect(image, tc.detection, mask, expected_shape=(camera.height, camera.width), hist=hist)
+    rows = None
+    if name != "earth" and predicted is not None:
+        rows = gate_search_rows(camera, predicted, math.radians(tc.gate_deg + tc.alpha_max_deg), tc.detection.search)
+    det = detect(image, tc.detection, mask, expected_shape=(camera.height, camera.width), hist=hist, rows=rows)
     t1 = time.perf_counter()
     timings[f"{name}.detect"] = t1 - t0
     out = TargetResult(name, det)
@@ -1223,7 +1346,7 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
         if accepted_len and n_i < tc.compete_fraction * accepted_len:
             break   # much shorter than an accepted edge: not the same body's limb (docstring)
         r_i = _score_candidate(i, det.candidates[i], image, camera, mask, det, tc,
-                               model if is_earth else None, rng, predicted)
+                               model if is_earth else None, frame_seed, predicted)
         results.append(r_i)
         if not r_i.reason:
             accepted_len = max(accepted_len, n_i)
@@ -1256,7 +1379,16 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
     if inl.sum() < max(min_used, 3):
         out.reason = f"candidate {win.index}: {int(inl.sum())} inliers on the full edge (min_pixels {tc.min_pixels})"
         return out
-    fit = _fit(H[inl], fit.alpha, fit.e_c if win.mirrored else None) if is_earth else direction_and_radius(H[inl])
+    if is_earth:
+        fit = _fit(H[inl], fit.alpha, fit.e_c if win.mirrored else None)
+    else:
+        fit = direction_and_radius(H[inl])
+        for _ in range(10):
+            new = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
+            if new.sum() < max(min_used, 3) or np.array_equal(new, inl):
+                break
+            inl = new
+            fit = direction_and_radius(H[inl])
     if fit.residual > tc.max_residual:
         out.reason = (f"candidate {win.index}: residual {fit.residual:.3g} rad^2 on the full edge > "
                       f"max_residual {tc.max_residual:.3g}")
@@ -1292,7 +1424,7 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, rng, tim
         P = cov.P_c
         conic = fit.conic
     P = 0.5 * (P + P.T)
-    lam = float(np.linalg.eigvalsh(P)[-1])
+    lam = float(largest_eigenvalue(P))
     timings[f"{name}.covariance"] = time.perf_counter() - t3
     n_inl = int(round(int(inl.sum()) * cand.n_pixels / max(uv.shape[0], 1)))
     out.points = uv
@@ -1347,6 +1479,8 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
         raise ValueError(f"image: {type(image).__name__}, expected a decoded uint8 numpy array "
                          f"(decode bytes with cv2.imdecode first)")
     rng = np.random.default_rng(0) if rng is None else rng
+    # one draw per frame: each candidate's RANSAC generator is derived from it (`_candidate_rng`)
+    frame_seed = int(rng.integers(2**63))
     timings: dict[str, float] = {}
     reasons: dict[str, str] = {}
     targets: dict[str, TargetResult] = {}
@@ -1393,7 +1527,8 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
                 if pred.shape != (3,) or not np.all(np.isfinite(pred)) or np.linalg.norm(pred) == 0:
                     raise ValueError(f"prior.{name}_c = {pred!r}; expected a finite 3-vector")
                 pred = pred / np.linalg.norm(pred)
-        tr = _process_target(name, image, camera, mask, tc, model, rng, timings, baseline and name == "earth", pred,
+        tr = _process_target(name, image, camera, mask, tc, model, frame_seed, timings,
+                             baseline and name == "earth", pred,
                              limb if name == "earth" else None, hists)
         targets[name] = tr
         if tr.record is not None:

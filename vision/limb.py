@@ -257,12 +257,10 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
             continue
         b = slope[i] / gamma
         # exp(-b s_k) by its recurrence over the uniform steps of s (one exp per profile: ~40 %
-        # of the kernel's time with an exp per sample; 67 products keep float64 to ~1e-14)
+        # of the kernel's time with an exp per sample; 67 products keep float64 to ~1e-14); f[k]
+        # is set as sample k is taken (in order of k; most profiles stop well before the end)
         fk = math.exp(-b * s[0])
         rk = math.exp(-b * (s[1] - s[0])) if S > 1 else 1.0
-        for k in range(S):
-            f[k] = np.float32(fk)
-            fk *= rk
         xa, ya = _q32(u, s[0], nx), _q32(v, s[0], ny)
         xb, yb = _q32(u, s[S - 1], nx), _q32(v, s[S - 1], ny)
         safe = (0.5 <= xa <= w - 1.5 and 0.5 <= xb <= w - 1.5 and 0.5 <= ya <= h - 1.5
@@ -277,11 +275,15 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
                 if not val >= 0.0:
                     inside = False
                     break
+                f[k] = np.float32(fk)
+                fk *= rk
                 c[k] = min(val, np.float32(255.0)) * f[k]
             if not inside:
                 continue
             taken = S
         for k in range(taken, i0 + 1):
+            f[k] = np.float32(fk)
+            fk *= rk
             c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
         taken = max(taken, i0 + 1)
         cmin = c[0]
@@ -294,6 +296,8 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
         stop = -1
         for k in range(i0, S):
             if k >= taken:
+                f[k] = np.float32(fk)
+                fk *= rk
                 c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
                 taken = k + 1
             ck = c[k]

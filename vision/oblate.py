@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from nav import earth
@@ -63,15 +64,18 @@ class LimbModel:
         """Camera rays (m, 3) -> unit rays in the fit frame."""
         if self.kind == "sphere":
             return rays_c
-        p = rays_c @ self.M.T
-        return p / np.linalg.norm(p, axis=-1, keepdims=True)
+        r = np.asarray(rays_c, dtype=float)
+        if r.ndim != 2:
+            p = r @ self.M.T
+            return p / np.linalg.norm(p, axis=-1, keepdims=True)
+        return _map_unit_rows(np.ascontiguousarray(r), self.M)
 
     def to_camera(self, e_fit: np.ndarray) -> np.ndarray:
         """Fitted unit direction in the fit frame -> unit direction in the camera frame."""
         if self.kind == "sphere":
             return e_fit
         e = self.M_inv @ e_fit
-        return e / np.linalg.norm(e)
+        return e / math.sqrt(float(e @ e))
 
     def cone_angle_change(self, dd) -> np.ndarray:
         """``alpha(d + dd) - alpha(d)`` [rad]: how much wider the cone of a limb ``dd`` [m] higher
@@ -92,6 +96,20 @@ def gaussian_radius(lat: float) -> float:
     mean of the normal-section radii over all azimuths), for `sphere_model` when the viewing
     azimuth is unknown."""
     return float(math.sqrt(earth.radius_of_curvature(lat, 0.0) * earth.radius_of_curvature(lat, math.pi / 2)))
+
+
+@numba.njit(cache=True)
+def _map_unit_rows(R, M):  # pragma: no cover - numba
+    """Rows of ``R @ M.T``, each normalised (`LimbModel.to_fit` of an (m, 3) array; called several
+    times per frame on 100-512 rays, where numpy's matmul + norm + divide cost ~8 us)."""
+    out = np.empty((R.shape[0], 3))
+    for i in range(R.shape[0]):
+        x = M[0, 0] * R[i, 0] + M[0, 1] * R[i, 1] + M[0, 2] * R[i, 2]
+        y = M[1, 0] * R[i, 0] + M[1, 1] * R[i, 1] + M[1, 2] * R[i, 2]
+        z = M[2, 0] * R[i, 0] + M[2, 1] * R[i, 1] + M[2, 2] * R[i, 2]
+        n = math.sqrt(x * x + y * y + z * z)
+        out[i, 0], out[i, 1], out[i, 2] = x / n, y / n, z / n
+    return out
 
 
 def sphere_model(height_m: float, radius_m: float, atmosphere_m: float = 0.0) -> LimbModel:
