@@ -187,8 +187,16 @@ def pframe_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float, f: float 
     return total / P.shape[0] if mean else total
 
 
-def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: str) -> ConeFit:
-    e = n / np.linalg.norm(n)
+def _norm3(v: np.ndarray) -> float:
+    """|v| of a 3-vector in float arithmetic (np.linalg.norm's call overhead is ~3 us; fits are
+    made several times per frame); NaN/inf propagate."""
+    a, b, c = v.tolist()
+    return math.sqrt(a * a + b * b + c * c)
+
+
+def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: str,
+              norm_n: float | None = None) -> ConeFit:
+    e = n / (_norm3(n) if norm_n is None else norm_n)
     delta, kind = conic_type(e, alpha)
     return ConeFit(e_c=e, alpha=float(alpha), n=n, rhs=float(rhs), discriminant=delta, conic=kind,
                    residual=_mean_sq_residual(H, e, float(alpha)), m=H.shape[0], method=method)
@@ -325,9 +333,10 @@ def nadir_from_horizon(rays_c: np.ndarray, alpha: float, method: str = "constrai
         n = constrained_cone_fit(H, c)
     else:
         raise ValueError(f"nadir_from_horizon: method {method!r}; expected 'linear' or 'constrained'")
-    if not np.all(np.isfinite(n)) or np.linalg.norm(n) == 0:
+    nn = _norm3(n)
+    if not (math.isfinite(nn) and nn > 0.0):
         raise ValueError("nadir_from_horizon: degenerate ray set (rays on a plane through the origin)")
-    return _make_fit(H, n, c, alpha, method)
+    return _make_fit(H, n, c, alpha, method, nn)
 
 
 def direction_and_radius(rays_c: np.ndarray) -> ConeFit:
@@ -343,11 +352,11 @@ def direction_and_radius(rays_c: np.ndarray) -> ConeFit:
     if rank < 3:
         raise ValueError("direction_and_radius: degenerate ray set (rank < 3: rays on a great "
                          "circle or fewer than 3 distinct rays)")
-    nn = float(np.linalg.norm(n))
-    if not np.isfinite(nn) or nn < 1.0:
+    nn = _norm3(n)
+    if not math.isfinite(nn) or nn < 1.0:
         raise ValueError(f"direction_and_radius: |n| = {nn:.6g} < 1: the rays do not lie on a cone "
                          f"with half-angle below 90 deg")
-    return _make_fit(H, n, 1.0, math.acos(1.0 / nn), "free-alpha")
+    return _make_fit(H, n, 1.0, math.acos(1.0 / nn), "free-alpha", nn)
 
 
 @numba.njit(cache=True)
