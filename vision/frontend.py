@@ -574,6 +574,19 @@ _PIXEL_ANGLE_CACHE: dict = {}
 def _pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
     """`vision.ransac.pixel_angle` through a per-camera table over the distorted radius (the exact
     function is evaluated once per camera on 256 radii; linear interpolation between them)."""
+    tab = _pixel_angle_table(camera)
+    q = np.hypot((uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy)
+    return np.interp(q, tab[0], tab[1])
+
+
+def _max_pixel_angle(camera: FisheyeCamera) -> float:
+    """The largest `_pixel_angle` in the image (its table's largest entry: interpolation between
+    entries cannot exceed it)."""
+    return _pixel_angle_table(camera)[2]
+
+
+def _pixel_angle_table(camera: FisheyeCamera):
+    """(radii, pixel angles, largest pixel angle) of `_pixel_angle`, cached per camera."""
     key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.k))
     tab = _PIXEL_ANGLE_CACHE.get(key)
     if tab is None:
@@ -584,10 +597,10 @@ def _pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
         rmax = min(rmax, camera.max_radius) if math.isfinite(camera.max_radius) else rmax
         q = np.linspace(0.0, rmax, 256)
         uvq = np.stack([camera.cx + q * camera.fx, np.full_like(q, camera.cy)], axis=-1)
-        tab = (q, pixel_angle(camera, uvq))
+        pa = pixel_angle(camera, uvq)
+        tab = (q, pa, float(np.max(pa)))
         _PIXEL_ANGLE_CACHE[key] = tab
-    q = np.hypot((uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy)
-    return np.interp(q, tab[0], tab[1])
+    return tab
 
 
 def _side_score(image, camera, mask, threshold, rays_c, uv, e_c, alpha_c_space, step_px, n_probe):
@@ -963,40 +976,49 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     idx = _subsample(cand.n_pixels, tc.score_rays)
     uv = cand.points[idx]
     rays_c = unproject(camera, uv)
-    ok = np.all(np.isfinite(rays_c), axis=1)
-    if ok.sum() < max(8, min(tc.min_pixels, idx.size) // 2):
+    ok = np.isfinite(rays_c[:, 2])     # unproject: all three NaN beyond the lens's range
+    n_ok = int(np.count_nonzero(ok))
+    if n_ok < max(8, min(tc.min_pixels, idx.size) // 2):
         res.reason = "edge pixels outside the lens's valid range"
         return res
-    uv, rays_c = uv[ok], rays_c[ok]
-    pa = _pixel_angle(camera, uv)
-    thr = tc.ransac_threshold_px * pa
+    if n_ok < ok.size:
+        uv, rays_c = uv[ok], rays_c[ok]
     H = rays_c if model is None else model.to_fit(rays_c)
-    alpha = None if model is None else model.alpha - tc.edge_offset_px * _median(pa)
     min_inliers = max(3, int(math.ceil(tc.min_inlier_fraction * H.shape[0])))
     if predicted is not None:
         # gate pre-filter: an accepted fit lies within gate_deg of the prediction and has at
         # least min_inliers rays within the threshold of its cone (the direct fit: 95 %). Earth:
-        # in the fit frame, +1 deg for its mapping (< 0.2 deg) and a mirrored refit's spread
+        # in the fit frame, +1 deg for its mapping (< 0.2 deg) and a mirrored refit's spread.
+        # The threshold and the edge offset with the camera's largest pixel angle (before the
+        # per-pixel angles: most candidates that fail here are not worth computing them for)
         p = predicted if model is None else model.to_fit(predicted)
-        reach = math.radians(tc.gate_deg + (tc.alpha_max_deg if model is None else 1.0)) + float(thr.max())
-        if not _gate_reachable(H, p / np.linalg.norm(p), alpha, reach, min_inliers):
+        pa_max = _max_pixel_angle(camera)
+        reach = (math.radians(tc.gate_deg + (tc.alpha_max_deg if model is None else 1.0))
+                 + (tc.ransac_threshold_px + (0.0 if model is None else abs(tc.edge_offset_px))) * pa_max)
+        if not _gate_reachable(H, p / np.linalg.norm(p), None if model is None else model.alpha, reach,
+                               min_inliers):
             res.reason = (f"gate: fewer than {min_inliers} of {H.shape[0]} pixels can lie on a "
                           f"{'disc' if model is None else 'limb'} within gate_deg {tc.gate_deg:g} "
                           f"of the predicted direction")
             return res
     # curvature pre-filter: no triple of pixels spread along the edge lies on a circle of the
-    # expected angular radius -> not this body's limb (saves the RANSAC on glare/cloud edges)
+    # expected angular radius -> not this body's limb (saves the RANSAC on glare/cloud edges).
+    # Earth: about the cone of the model, widened by the edge offset's largest angle
     rho = _triple_radii(H)
-    if alpha is not None:
-        ok_rho = np.abs(rho - alpha) <= math.radians(tc.curvature_tol_deg)
+    if model is not None:
+        ok_rho = np.abs(rho - model.alpha) <= (math.radians(tc.curvature_tol_deg)
+                                               + abs(tc.edge_offset_px) * _max_pixel_angle(camera))
     else:
         ok_rho = rho <= math.radians(tc.alpha_max_deg + tc.curvature_tol_deg)
     if rho.size and not np.any(ok_rho):
-        want = (f"{math.degrees(alpha):.1f}" if alpha is not None else f"<= {tc.alpha_max_deg:g}")
+        want = (f"{math.degrees(model.alpha):.1f}" if model is not None else f"<= {tc.alpha_max_deg:g}")
         res.reason = (f"curvature: circles through pixel triples have radii "
                       f"{math.degrees(rho.min()):.1f}-{math.degrees(rho.max()):.1f} deg, expected {want} "
                       f"+- {tc.curvature_tol_deg:g} deg")
         return res
+    pa = _pixel_angle(camera, uv)
+    thr = tc.ransac_threshold_px * pa
+    alpha = None if model is None else model.alpha - tc.edge_offset_px * _median(pa)
     # shortcut: a clean edge is fitted directly; RANSAC (000 §2.3) only when that fit leaves
     # more than `direct_outlier_fraction` of the pixels outside the threshold
     rr = None
@@ -1368,8 +1390,9 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     sel = _subsample(cand.n_pixels, tc.fit_rays)
     uv = cand.points[sel]
     rays_c, J = unproject_jacobian(camera, uv)
-    ok = np.all(np.isfinite(rays_c), axis=1)
-    uv, rays_c, J = uv[ok], rays_c[ok], J[ok]
+    ok = np.isfinite(rays_c[:, 2])     # all three NaN beyond the lens's range
+    if not ok.all():
+        uv, rays_c, J = uv[ok], rays_c[ok], J[ok]
     pa = _pixel_angle(camera, uv)
     H = model.to_fit(rays_c) if is_earth else rays_c
     fit = win.fit

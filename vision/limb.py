@@ -473,11 +473,19 @@ def _profile_normals(camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray, 
                      pixel_angle: np.ndarray) -> np.ndarray:
     """(m, 2) unit image directions of the limb profiles: from each edge pixel towards the body
     e_c (the image of the ray turned by one pixel angle towards it)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q1 = project(camera, turn_towards(rays_c, e_c, pixel_angle))
-    n = q1 - uv
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    return n
+    q1 = project(camera, turn_towards(rays_c, e_c, pixel_angle))
+    return _unit_differences(q1, np.ascontiguousarray(uv, dtype=float))
+
+
+@numba.njit(cache=True)
+def _unit_differences(q, p):  # pragma: no cover - numba
+    """Rows (q - p) / max(|q - p|, 1e-300) of (m, 2) arrays (NaN rows stay NaN)."""
+    out = np.empty_like(q)
+    for i in range(q.shape[0]):
+        dx, dy = q[i, 0] - p[i, 0], q[i, 1] - p[i, 1]
+        nn = max(math.sqrt(dx * dx + dy * dy), 1e-300)
+        out[i, 0], out[i, 1] = dx / nn, dy / nn
+    return out
 
 
 def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray,
