@@ -530,10 +530,10 @@ def conic_polyline(camera: FisheyeCamera, e_c: np.ndarray, alpha: float, n: int 
 
 
 @functools.lru_cache(maxsize=8)
-def _unit_circle(n: int) -> np.ndarray:
-    """(n, 2) [cos psi, sin psi] at n angles from 0 to 2 pi (both ends), read-only."""
-    psi = np.linspace(0.0, 2 * math.pi, n)
-    c = np.stack([np.cos(psi), np.sin(psi)], axis=1)
+def _unit_circle(n: int, endpoint: bool = True) -> np.ndarray:
+    """(n, 2) [cos psi, sin psi] at ``np.linspace(0, 2 pi, n, endpoint)``, C-contiguous, read-only."""
+    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=endpoint)
+    c = np.ascontiguousarray(np.stack([np.cos(psi), np.sin(psi)], axis=1))
     c.flags.writeable = False
     return c
 
@@ -749,7 +749,7 @@ def _disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16
     img = image if image.ndim == 3 else image[:, :, None]
     m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
     n_in, dark_in, n_out, dark_out = _disc_kernel(
-        img, m, float(threshold), np.asarray(e_c, dtype=float), T, _ring_angles(n),
+        img, m, float(threshold), np.asarray(e_c, dtype=float), T, _unit_circle(n, False),
         0.5 * alpha, alpha + step_px * pa, camera.fx, camera.fy, camera.cx, camera.cy, np.asarray(camera.k),
         camera.max_theta)
     if n_in < 0.75 * n:
@@ -759,15 +759,6 @@ def _disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16
     if n_out and dark_out / n_out < 0.75:
         return f"bright around the disc ({n_out - dark_out}/{n_out} outer probes above threshold)"
     return ""
-
-
-@functools.lru_cache(maxsize=8)
-def _ring_angles(n: int) -> np.ndarray:
-    """(n, 2) cos, sin of ``np.linspace(0, 2 pi, n, endpoint=False)`` (read-only)."""
-    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
-    cs = np.ascontiguousarray(np.stack([np.cos(psi), np.sin(psi)], axis=1))
-    cs.flags.writeable = False
-    return cs
 
 
 @numba.njit(cache=True)
