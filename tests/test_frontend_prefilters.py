@@ -16,7 +16,17 @@ from vision.borders import SearchConfig, search_line_spacing, search_rows
 from vision.camera import atek_camera, project
 from vision.candidates import Candidate
 from vision.oblate import ellipsoid_model
-from tests.test_frontend import CAM, angle_deg, geo_frames, geometric_config  # noqa: F401 (fixture)
+from scenarios import render
+from tests.poses import pose
+from tests.test_frontend import CAM, GEO_POSES, SUN, angle_deg, geometric_config
+
+
+@pytest.fixture(scope="module")
+def geo_frame():
+    """The first geometric frame of tests/test_frontend.py."""
+    az, down, roll, h = GEO_POSES[0]
+    R, x = pose(az, down, h=h, roll_deg=roll)
+    return R, x, render.render_frame(CAM, R, x, SUN, None, options=render.RenderOptions.geometric())
 
 
 def _direction(off_axis_deg: float, azimuth_deg: float) -> np.ndarray:
@@ -65,13 +75,13 @@ def test_gate_search_rows_keep_every_row_a_disc_in_the_gate_crosses():
     assert F.gate_search_rows(cam, _direction(10.0, 0.0), cap, SearchConfig()) is None
 
 
-def test_gate_pre_filter_rejects_only_what_the_gate_rejects(geo_frames, monkeypatch):
+def test_gate_pre_filter_rejects_only_what_the_gate_rejects(geo_frame, monkeypatch):
     """The gate pre-filter is a shortcut: with it switched off, a prior 15 deg off still gives no
     vector (the gate after the fit rejects it), and with a prior 3 deg off both give the same
     vector."""
     from nav.rotation import rotvec_to_matrix
 
-    R, x, fr = geo_frames[0]
+    R, x, fr = geo_frame
     e_true = np.asarray(fr.e_c_earth, dtype=float)
     axis = np.cross(e_true, [0.0, 0.0, 1.0])
     axis /= np.linalg.norm(axis)
