@@ -78,7 +78,7 @@ from vision.covariance import direction_covariance, largest_eigenvalue, tangent_
 from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points, phase_slope,
                          profile_height_shift, tangent_height_sun, turn_towards)
 from vision.mask import PayloadMask
-from vision.nadir import (ConeFit, angle_residual, angle_residuals, conic_type,
+from vision.nadir import (ConeFit, _norm3, angle_residual, angle_residuals, conic_type,
                           direction_and_radius, mirrored_direction, nadir_from_horizon)
 from vision.oblate import LimbModel, ellipsoid_model, sphere_model
 from vision.ransac import pixel_angle, ransac_cone
@@ -477,7 +477,7 @@ class FrameResult:
 def _subsample(m: int, k: int) -> np.ndarray:
     """At most k indices spread evenly over 0..m-1 (edge order kept). Cached per (m, k) (the
     same edge lengths recur from frame to frame); the returned array is read-only."""
-    idx = np.arange(m) if m <= k else _spread_indices(m, k)
+    idx = np.arange(m) if m <= k else (_spread_indices(m, k) if k > 1 else np.zeros(max(k, 0), np.int64))
     idx.flags.writeable = False
     return idx
 
@@ -1093,7 +1093,7 @@ def _conic_passes_image(camera: FisheyeCamera, e_fit: np.ndarray, alpha: float, 
     e = np.asarray(e_fit, dtype=float)
     r = H_inl.sum(axis=0) if H_inl.shape[0] else e
     t = r - (r @ e) * e
-    nt = math.sqrt(float(t @ t))
+    nt = _norm3(t)
     if nt > 1e-12:
         p = math.cos(alpha) * e + (math.sin(alpha) / nt) * t
         if model is not None and model.kind != "sphere":
@@ -1286,16 +1286,25 @@ def _refit_turned(model_l: LimbModel, rays2, e_c, thr):
     H2 = model_l.to_fit(rays2)
     e0 = model_l.M @ e_c
     fit = _fit(H2, model_l.alpha, e0 / np.linalg.norm(e0))
-    inl = np.ones(rays2.shape[0], bool)
-    for _ in range(2):
-        new = np.abs(angle_residuals(H2, fit.e_c, fit.alpha)) <= thr
-        if new.sum() < 20:
-            return None
-        if np.array_equal(new, inl):
-            break       # the same points: the fit on them is the one at hand (converged)
-        inl = new
-        fit = _fit(H2[inl], model_l.alpha, fit.e_c)
-    return fit, inl
+    fit, inl, ok = _reselect_inliers(H2, fit, np.ones(rays2.shape[0], bool), thr,
+                                     lambda Hi, f: _fit(Hi, model_l.alpha, f.e_c), 2, 20)
+    return (fit, inl) if ok else None
+
+
+def _reselect_inliers(H, fit, inliers, thr, refit, n_iter: int, min_inliers: int):
+    """Local optimisation of a cone fit: the rays within ``thr`` [rad] of its cone, the fit
+    ``refit(H[sel], fit)`` on them, repeated until the selection repeats (the fit on it is the one
+    at hand) or ``n_iter`` times. Returns (fit, inliers, ok); ok is False when a selection had
+    fewer than ``min_inliers`` rays (fit and inliers are then the last ones before it)."""
+    for _ in range(n_iter):
+        new = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
+        if new.sum() < min_inliers:
+            return fit, inliers, False
+        if np.array_equal(new, inliers):
+            break
+        inliers = new
+        fit = refit(H[inliers], fit)
+    return fit, inliers, True
 
 
 def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: LimbModel, uv, rays_c, J, pa,
@@ -1308,7 +1317,7 @@ def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: L
     ``limb_height_m`` fitted. None with fewer than ``limb_flank_min_profiles`` fitted profiles or
     20 inliers. Covariance term ``limb_flank_sigma_m`` with the heights' spread over sqrt(n)."""
     m = uv.shape[0]
-    idx = np.unique(np.linspace(0, m - 1, min(tc.limb_flank_profiles, m)).round().astype(int))
+    idx = _subsample(m, tc.limb_flank_profiles)
     h = flank_heights(image, camera, uv[idx], rays_c[idx], e_c, pa[idx], R_t, x_e, sun_e, lc,
                       height_m=tc.limb_height_m, scale_height_m=tc.limb_scale_height_m,
                       aerosol_weight=tc.limb_aerosol_weight, aerosol_g=tc.limb_aerosol_g)
@@ -1396,13 +1405,10 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     if is_earth:
         fit = _fit(H[inl], fit.alpha, fit.e_c if win.mirrored else None)
     else:
-        fit = direction_and_radius(H[inl])
-        for _ in range(10):
-            new = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
-            if new.sum() < max(min_used, 3) or np.array_equal(new, inl):
-                break
-            inl = new
-            fit = direction_and_radius(H[inl])
+        # iterated to a stable inlier set: the result does not depend on the RANSAC's draw as
+        # much as a single re-selection (docs/vision.md, seventh session)
+        fit, inl, _ = _reselect_inliers(H, direction_and_radius(H[inl]), inl, thr,
+                                        lambda Hi, f: direction_and_radius(Hi), 10, max(min_used, 3))
     if fit.residual > tc.max_residual:
         out.reason = (f"candidate {win.index}: residual {fit.residual:.3g} rad^2 on the full edge > "
                       f"max_residual {tc.max_residual:.3g}")
