@@ -940,8 +940,8 @@ def _candidate_rng(frame_seed: int, cand: Candidate) -> np.random.Generator:
 
 def _gate_reachable(H: np.ndarray, predicted: np.ndarray, alpha: float | None, reach: float, need: int) -> bool:
     """Can a fit of these rays pass the gate? At least ``need`` rays (the fewest inliers of an
-    accepted fit) must lie within ``reach`` [rad] of a cone of half-angle ``alpha`` about
-    ``predicted`` (Earth: | angle - alpha | <= reach), or within ``reach`` of ``predicted``
+    accepted fit) must lie within ``reach`` [rad] of a cone of half-angle ``alpha`` about the unit
+    direction ``predicted`` (Earth: | angle - alpha | <= reach), or within ``reach`` of ``predicted``
     itself (Sun/Moon, ``alpha`` None; their inliers lie within gate + alpha_max + threshold)."""
     return _count_near(H, predicted, -1.0 if alpha is None else alpha, reach) >= need
 
@@ -986,8 +986,7 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
         pa_max = _max_pixel_angle(camera)
         reach = (math.radians(tc.gate_deg + (tc.alpha_max_deg if model is None else 1.0))
                  + (tc.ransac_threshold_px + (0.0 if model is None else abs(tc.edge_offset_px))) * pa_max)
-        if not _gate_reachable(H, p / np.linalg.norm(p), None if model is None else model.alpha, reach,
-                               min_inliers):
+        if not _gate_reachable(H, p, None if model is None else model.alpha, reach, min_inliers):
             res.reason = (f"gate: fewer than {min_inliers} of {H.shape[0]} pixels can lie on a "
                           f"{'disc' if model is None else 'limb'} within gate_deg {tc.gate_deg:g} "
                           f"of the predicted direction")

@@ -65,10 +65,7 @@ class LimbModel:
         if self.kind == "sphere":
             return rays_c
         r = np.asarray(rays_c, dtype=float)
-        if r.ndim != 2:
-            p = r @ self.M.T
-            return p / np.linalg.norm(p, axis=-1, keepdims=True)
-        return _map_unit_rows(np.ascontiguousarray(r), self.M)
+        return _map_unit_rows(np.ascontiguousarray(r.reshape(-1, 3)), self.M).reshape(r.shape)
 
     def to_camera(self, e_fit: np.ndarray) -> np.ndarray:
         """Fitted unit direction in the fit frame -> unit direction in the camera frame."""
