@@ -329,50 +329,52 @@ def _dpoly1(k, t):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def _theta1(k, r, inv_dr, th_tab, sl_tab, max_radius):  # pragma: no cover - numba
-    """theta = r_d^-1(r) for one r (NaN outside [0, max_radius]): bracket [th_tab[j], th_tab[j+1]]
-    of the grid uniform in r (`_rtable`, widened by 1e-14 rad for the rounding of its entries),
-    cubic Hermite start (linear where a slope is not finite or the cubic leaves the bracket), then
-    Newton steps; a step leaving the (shrinking) bracket is replaced by bisection. Stops when the
-    step is below _NEWTON_TOL (1e-13 rad; usually after the first step), at most 100 steps."""
-    if not (r >= 0.0 and r <= max_radius):
-        return math.nan
-    x = r * inv_dr
-    j = min(int(x), th_tab.shape[0] - 2)
-    lo, hi = th_tab[j], th_tab[j + 1]
-    t = x - j
-    m0, m1 = sl_tab[j], sl_tab[j + 1]
-    t2 = t * t
-    t3 = t2 * t
-    theta = ((2.0 * t3 - 3.0 * t2 + 1.0) * lo + (t3 - 2.0 * t2 + t) * m0
-             + (3.0 * t2 - 2.0 * t3) * hi + (t3 - t2) * m1)
-    if not (theta >= lo and theta <= hi):
-        theta = lo + (hi - lo) * t
-    lo -= 1e-14
-    hi += 1e-14
-    for _ in range(100):
-        f = _poly1(k, theta) - r
-        df = _dpoly1(k, theta)
-        if f < 0.0:
-            lo = max(lo, theta)
-        elif f > 0.0:
-            hi = min(hi, theta)
-        new = theta - f / df if df != 0.0 else math.nan
-        if not (new >= lo and new <= hi):
-            new = 0.5 * (lo + hi)
-        step = abs(new - theta)
-        theta = new
-        if step < _NEWTON_TOL:
-            break
-    return theta
-
-
-@numba.njit(cache=True, nogil=True)
 def _inverse_radial_kernel(r, k, inv_dr, th_tab, sl_tab, max_radius):  # pragma: no cover - numba
-    """`inverse_radial` of a 1-D array r."""
-    out = np.empty(r.shape[0])
-    for i in range(r.shape[0]):
-        out[i] = _theta1(k, r[i], inv_dr, th_tab, sl_tab, max_radius)
+    """`inverse_radial` of a 1-D array r: theta = r_d^-1(r_i) (NaN outside [0, max_radius]).
+
+    Per element: the bracket [th_tab[j], th_tab[j+1]] of the grid uniform in r (`_rtable`,
+    widened by 1e-14 rad for the rounding of its entries), a cubic Hermite start (linear where a
+    slope is not finite or the cubic leaves the bracket), then Newton steps; a step leaving the
+    (shrinking) bracket is replaced by bisection. Stops when the step is below _NEWTON_TOL
+    (1e-13 rad; usually after the first step), at most 100 steps. The element loop and its body
+    are one function: a per-element helper taking the tables (arrays) cost numba's atomic
+    incref/decref of each of them per element (~5 % of a frame's time)."""
+    m = r.shape[0]
+    out = np.empty(m)
+    jmax = th_tab.shape[0] - 2
+    for i in range(m):
+        ri = r[i]
+        if not (ri >= 0.0 and ri <= max_radius):
+            out[i] = math.nan
+            continue
+        x = ri * inv_dr
+        j = min(int(x), jmax)
+        lo, hi = th_tab[j], th_tab[j + 1]
+        t = x - j
+        m0, m1 = sl_tab[j], sl_tab[j + 1]
+        t2 = t * t
+        t3 = t2 * t
+        theta = ((2.0 * t3 - 3.0 * t2 + 1.0) * lo + (t3 - 2.0 * t2 + t) * m0
+                 + (3.0 * t2 - 2.0 * t3) * hi + (t3 - t2) * m1)
+        if not (theta >= lo and theta <= hi):
+            theta = lo + (hi - lo) * t
+        lo -= 1e-14
+        hi += 1e-14
+        for _ in range(100):
+            f = _poly1(k, theta) - ri
+            df = _dpoly1(k, theta)
+            if f < 0.0:
+                lo = max(lo, theta)
+            elif f > 0.0:
+                hi = min(hi, theta)
+            new = theta - f / df if df != 0.0 else math.nan
+            if not (new >= lo and new <= hi):
+                new = 0.5 * (lo + hi)
+            step = abs(new - theta)
+            theta = new
+            if step < _NEWTON_TOL:
+                break
+        out[i] = theta
     return out
 
 
@@ -386,11 +388,16 @@ def _unproject_kernel(uv, fx, fy, cx, cy, k, inv_dr, th_tab, sl_tab, max_radius,
     k1 = k[0]
     k2 = k[1] if k.shape[0] > 1 else 0.0
     c_small = k2 / k1 ** 4 + 1.0 / (6.0 * k1 ** 3)
+    xq = np.empty(n)
+    yq = np.empty(n)
+    rq = np.empty(n)
     for i in range(n):
-        xd = (uv[i, 0] - cx) / fx
-        yd = (uv[i, 1] - cy) / fy
-        r_d = math.hypot(xd, yd)
-        theta = _theta1(k, r_d, inv_dr, th_tab, sl_tab, max_radius)
+        xq[i] = (uv[i, 0] - cx) / fx
+        yq[i] = (uv[i, 1] - cy) / fy
+        rq[i] = math.hypot(xq[i], yq[i])
+    th = _inverse_radial_kernel(rq, k, inv_dr, th_tab, sl_tab, max_radius)
+    for i in range(n):
+        xd, yd, r_d, theta = xq[i], yq[i], rq[i], th[i]
         st = math.sin(theta)
         ct = math.cos(theta)
         if not jac:
