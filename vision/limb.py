@@ -417,7 +417,9 @@ def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, su
     s = np.asarray(sun_c, dtype=float)
     s = s / np.linalg.norm(s)
     r = np.ascontiguousarray(rays_c, dtype=float).reshape(-1, 3)
-    pa = np.broadcast_to(np.asarray(pixel_angle, dtype=float), (r.shape[0],))
+    pa = np.asarray(pixel_angle, dtype=float)
+    if pa.shape != (r.shape[0],):
+        pa = np.broadcast_to(pa, (r.shape[0],))
     out = np.empty(r.shape[0])
     _phase_slope_kernel(r, np.asarray(e_c, dtype=float), np.ascontiguousarray(pa), s, float(aerosol_weight),
                         float(aerosol_g), out)
@@ -517,12 +519,12 @@ def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, r
     uv_new = uv + np.where(ok, sc, 0.0)[:, None] * n
     rays_new = rays_c.copy()
     J_new = np.full((m, 3, 2), np.nan) if jacobian else None
-    if np.any(ok):
+    if ok.any():
         if jacobian:
             rays_new[ok], J_new[ok] = unproject_jacobian(camera, uv_new[ok])
         else:
             rays_new[ok] = unproject(camera, uv_new[ok])
-        ok &= np.all(np.isfinite(rays_new), axis=1)
+        ok &= np.isfinite(rays_new).all(axis=1)
     return (uv_new, rays_new, ok, J_new) if jacobian else (uv_new, rays_new, ok)
 
 

@@ -150,8 +150,8 @@ def angle_residuals(rays_c: np.ndarray, e_c: np.ndarray, alpha: float) -> np.nda
 
 def angle_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float) -> float:
     """Mean squared angular distance of the rays from the cone (e_c, alpha) [rad^2]."""
-    r = angle_residuals(rays_c, e_c, alpha)
-    return float(np.mean(r * r))
+    H = np.ascontiguousarray(rays_c, dtype=float).reshape(-1, 3)
+    return float(_mean_sq_residual(H, np.ascontiguousarray(e_c, dtype=float), float(alpha)))
 
 
 def pframe_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float, f: float = 1.0,
@@ -204,7 +204,7 @@ def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: st
 
 @numba.njit(cache=True)
 def _mean_sq_residual(H, e, alpha):
-    """`angle_residual` of unit rows H in one pass (a fit's residual: the numpy version is ~6
+    """`angle_residual` of the rows H in one pass (a fit's residual: the numpy version was ~6
     small calls, and every fit computes it)."""
     m = H.shape[0]
     acc = 0.0

@@ -80,7 +80,7 @@ class LimbModel:
         cos alpha)``). Exact where ``alpha_rate dd`` is not: from 100 km up, a limb 35 km higher
         is 1.3x the linear angle (the rate grows as the cone closes in on the horizon's dip)."""
         s = math.sin(self.alpha) + np.asarray(dd, dtype=float) * self.alpha_rate * math.cos(self.alpha)
-        return np.arcsin(np.clip(s, -1.0, 1.0)) - self.alpha
+        return np.arcsin(np.minimum(np.maximum(s, -1.0), 1.0)) - self.alpha
 
     def height_change(self, dalpha) -> np.ndarray:
         """The inverse of `cone_angle_change`: ``dd`` [m] with ``alpha(d + dd) = alpha(d) + dalpha``."""
@@ -125,7 +125,7 @@ def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0
     ``R_ec`` (camera -> e), see the module docstring."""
     x = np.asarray(x_e, dtype=float)
     R = np.asarray(R_ec, dtype=float)
-    if x.shape != (3,) or R.shape != (3, 3) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(R))):
+    if x.shape != (3,) or R.shape != (3, 3) or not (np.isfinite(x).all() and np.isfinite(R).all()):
         raise ValueError(f"ellipsoid_model: x_e {x.shape}, R_ec {R.shape}; expected finite (3,), (3, 3)")
     a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
     s = np.array([1.0, 1.0, a / b])

@@ -229,7 +229,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
 
     fit = refit(best_mask)
     mask = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
-    if mask.sum() >= max(min_inliers, 3) and not np.array_equal(mask, best_mask):
+    if mask.sum() >= max(min_inliers, 3) and not (mask == best_mask).all():
         fit = refit(mask)
     else:
         mask = best_mask
