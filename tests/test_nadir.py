@@ -363,3 +363,17 @@ def test_conic_eq7_and_eq18_roundtrip():
     z = conic_from_nadir(e, math.radians(70))
     zf = fit_conic(xy)
     assert min(np.linalg.norm(zf - z / np.linalg.norm(z)), np.linalg.norm(zf + z / np.linalg.norm(z))) < 1e-7
+
+
+def test_per_ray_is_broadcast_to_without_its_overhead():
+    """`per_ray` against np.broadcast_to: scalar, (m,) (the same array back when already
+    contiguous float64), (1,), a strided view; a wrong length raises like broadcast_to."""
+    from vision.nadir import per_ray
+    a = np.linspace(0.1, 1.0, 7)
+    assert per_ray(a, 7) is a
+    for x in (0.25, np.float32(0.5), np.array([0.75]), np.linspace(0, 1, 14)[::2], [1, 2, 3, 4, 5, 6, 7]):
+        got = per_ray(x, 7)
+        assert got.dtype == np.float64 and got.flags.c_contiguous and got.shape == (7,)
+        np.testing.assert_array_equal(got, np.broadcast_to(np.asarray(x, dtype=float), (7,)))
+    with pytest.raises(ValueError):
+        per_ray(np.ones(3), 7)

@@ -80,6 +80,7 @@ import numpy as np
 
 from nav import earth as _earth
 from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
+from vision.nadir import per_ray
 
 _EARTH_A, _EARTH_B = _earth.A, _earth.B
 
@@ -417,11 +418,9 @@ def phase_slope(rays_c: np.ndarray, e_c: np.ndarray, pixel_angle: np.ndarray, su
     s = np.asarray(sun_c, dtype=float)
     s = s / np.linalg.norm(s)
     r = np.ascontiguousarray(rays_c, dtype=float).reshape(-1, 3)
-    pa = np.asarray(pixel_angle, dtype=float)
-    if pa.shape != (r.shape[0],):
-        pa = np.broadcast_to(pa, (r.shape[0],))
+    pa = per_ray(pixel_angle, r.shape[0])
     out = np.empty(r.shape[0])
-    _phase_slope_kernel(r, np.asarray(e_c, dtype=float), np.ascontiguousarray(pa), s, float(aerosol_weight),
+    _phase_slope_kernel(r, np.asarray(e_c, dtype=float), pa, s, float(aerosol_weight),
                         float(aerosol_g), out)
     return out
 
@@ -448,7 +447,7 @@ def turn_towards(rays: np.ndarray, e: np.ndarray, angle) -> np.ndarray:
     """Unit rays (m, 3) turned by ``angle`` [rad] (scalar or (m,)) towards the direction e, each
     along its great circle through e."""
     r = np.ascontiguousarray(rays, dtype=float).reshape(-1, 3)
-    a = np.ascontiguousarray(np.broadcast_to(np.asarray(angle, dtype=float), (r.shape[0],)))
+    a = per_ray(angle, r.shape[0])
     out = np.empty_like(r)
     _turn_kernel(r, np.asarray(e, dtype=float), a, out)
     return out

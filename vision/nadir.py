@@ -56,6 +56,7 @@ __all__ = [
     "conic_type",
     "angle_residuals",
     "angle_residual",
+    "per_ray",
     "pframe_residual",
     "earth_side_check",
     "mirrored_direction",
@@ -106,6 +107,17 @@ def conic_type(e_c: np.ndarray, alpha: float, tol: float = 1e-12) -> tuple[float
     delta = math.sin(alpha) ** 2 - float(e_c[2]) ** 2
     kind = "parabola" if abs(delta) <= tol else ("hyperbola" if delta > 0 else "ellipse")
     return delta, kind
+
+
+def per_ray(values, m: int) -> np.ndarray:
+    """A scalar or (m,) values as a C-contiguous float64 (m,) array, not copied when it already
+    is one (np.broadcast_to costs ~10 us a call; this is called for every ray set)."""
+    a = np.asarray(values, dtype=float)
+    if a.shape == (m,):
+        return np.ascontiguousarray(a)
+    if a.ndim == 0:
+        return np.full(m, float(a))
+    return np.ascontiguousarray(np.broadcast_to(a, (m,)))
 
 
 def _check_rays(rays_c: np.ndarray, minimum: int = 3) -> np.ndarray:

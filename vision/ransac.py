@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from vision.camera import FisheyeCamera, inverse_radial, radial_derivative, radial_distance
-from vision.nadir import ConeFit, _check_rays, angle_residuals, direction_and_radius, nadir_from_horizon
+from vision.nadir import ConeFit, _check_rays, angle_residuals, direction_and_radius, nadir_from_horizon, per_ray
 
 __all__ = ["RansacResult", "ransac_cone", "pixel_angle"]
 
@@ -187,11 +187,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
     """
     H = _check_rays(rays_c)
     m = H.shape[0]
-    if isinstance(threshold, np.ndarray) and threshold.shape == (m,) and threshold.dtype == np.float64 \
-            and threshold.flags.c_contiguous:
-        thr = threshold           # the usual per-ray array: no copy (small-array calls dominate here)
-    else:
-        thr = np.ascontiguousarray(np.broadcast_to(np.asarray(threshold, dtype=float), (m,)))
+    thr = per_ray(threshold, m)
     if not thr.min() > 0:
         raise ValueError("ransac_cone: threshold must be > 0 [rad]")
     if not 0 < confidence < 1:
