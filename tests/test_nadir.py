@@ -377,3 +377,22 @@ def test_per_ray_is_broadcast_to_without_its_overhead():
         np.testing.assert_array_equal(got, np.broadcast_to(np.asarray(x, dtype=float), (7,)))
     with pytest.raises(ValueError):
         per_ray(np.ones(3), 7)
+
+
+def test_within_cone_is_the_residual_test():
+    """`within_cone` against ``|angle_residuals| <= thr`` in numpy on 20 000 random unit rays
+    (scalar and per-ray thresholds; rays exactly at the threshold excluded: the one-pass dot
+    product may differ from the matrix product in the last bit)."""
+    from vision.nadir import angle_residuals, within_cone
+    rng = np.random.default_rng(5)
+    H = rng.normal(size=(20000, 3))
+    H /= np.linalg.norm(H, axis=1, keepdims=True)
+    e = np.array([0.3, -0.2, 0.9]) / np.linalg.norm([0.3, -0.2, 0.9])
+    alpha = 0.8
+    for thr in (0.05, rng.uniform(0.01, 0.2, 20000)):
+        r = np.abs(angle_residuals(H, e, alpha))
+        clear = np.abs(r - thr) > 1e-12
+        got = within_cone(H, e, alpha, thr)
+        assert got.dtype == np.bool_ and got.shape == (20000,)
+        np.testing.assert_array_equal(got[clear], (r <= thr)[clear])
+        assert 300 < got.sum() < 19000     # both outcomes occur

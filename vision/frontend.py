@@ -78,7 +78,7 @@ from vision.covariance import direction_covariance, largest_eigenvalue, tangent_
 from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points, phase_slope,
                          profile_height_shift, tangent_height_sun, turn_towards)
 from vision.mask import PayloadMask
-from vision.nadir import (ConeFit, _norm3, angle_residual, angle_residuals, conic_type,
+from vision.nadir import (ConeFit, _norm3, angle_residual, angle_residuals, conic_type, within_cone,
                           direction_and_radius, mirrored_direction, nadir_from_horizon)
 from vision.oblate import LimbModel, ellipsoid_model, sphere_model
 from vision.ransac import pixel_angle, ransac_cone
@@ -1035,10 +1035,10 @@ def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targ
     rr = None
     try:
         f0 = _fit(H, alpha)
-        in0 = np.abs(angle_residuals(H, f0.e_c, f0.alpha)) <= thr
+        in0 = within_cone(H, f0.e_c, f0.alpha, thr)
         if np.count_nonzero(in0) >= (1.0 - tc.direct_outlier_fraction) * in0.size:
             f1 = _fit(H[in0], alpha)
-            rr = _Consensus(f1, np.abs(angle_residuals(H, f1.e_c, f1.alpha)) <= thr)
+            rr = _Consensus(f1, within_cone(H, f1.e_c, f1.alpha, thr))
     except ValueError:
         rr = None
     try:
@@ -1320,7 +1320,7 @@ def _reselect_inliers(H, fit, inliers, thr, refit, n_iter: int, min_inliers: int
     at hand) or ``n_iter`` times. Returns (fit, inliers, ok); ok is False when a selection had
     fewer than ``min_inliers`` rays (fit and inliers are then the last ones before it)."""
     for _ in range(n_iter):
-        new = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
+        new = within_cone(H, fit.e_c, fit.alpha, thr)
         if new.sum() < min_inliers:
             return fit, inliers, False
         if (new == inliers).all():
@@ -1420,7 +1420,7 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     H = model.to_fit(rays_c) if is_earth else rays_c
     fit = win.fit
     thr = tc.ransac_threshold_px * pa
-    inl = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
+    inl = within_cone(H, fit.e_c, fit.alpha, thr)
     min_used = min(tc.min_pixels, int(math.ceil(tc.min_pixels / step)))
     if inl.sum() < max(min_used, 3):
         out.reason = f"candidate {win.index}: {int(inl.sum())} inliers on the full edge (min_pixels {tc.min_pixels})"

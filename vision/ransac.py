@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from vision.camera import FisheyeCamera, inverse_radial, radial_derivative, radial_distance
-from vision.nadir import ConeFit, _check_rays, angle_residuals, direction_and_radius, nadir_from_horizon, per_ray
+from vision.nadir import ConeFit, _check_rays, _within_cone, direction_and_radius, nadir_from_horizon, per_ray
 
 __all__ = ["RansacResult", "ransac_cone", "pixel_angle"]
 
@@ -142,16 +142,6 @@ def _score_hypotheses(H, idx, thr, c, alpha, free):
 
 
 @numba.njit(cache=True)
-def _inlier_row(H, e, al, thr):
-    """Inlier mask of one hypothesis, the test of `_score_hypotheses`."""
-    m = H.shape[0]
-    out = np.zeros(m, np.bool_)
-    for j in range(m):
-        out[j] = abs(math.acos(_clip1(H[j, 0] * e[0] + H[j, 1] * e[1] + H[j, 2] * e[2])) - al) <= thr[j]
-    return out
-
-
-@numba.njit(cache=True)
 def _count_best(counts):
     """(number of counts >= 0, index of the first largest count): ``(counts >= 0).sum()`` and
     ``argmax(counts)`` in one pass (three numpy calls on a 100-element array otherwise)."""
@@ -207,7 +197,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
             continue
         n_scored += n_valid
         if counts[j] > best_count:
-            best_count, best_mask = int(counts[j]), _inlier_row(H, E[j], AL[j], thr)
+            best_count, best_mask = int(counts[j]), _within_cone(H, E[j], AL[j], thr)
             w = best_count / m
             if w >= 1.0:
                 needed = n_hyp
@@ -224,7 +214,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
         return nadir_from_horizon(H[mask], alpha, method=method)
 
     fit = refit(best_mask)
-    mask = np.abs(angle_residuals(H, fit.e_c, fit.alpha)) <= thr
+    mask = _within_cone(H, fit.e_c, fit.alpha, thr)
     if mask.sum() >= max(min_inliers, 3) and not (mask == best_mask).all():
         fit = refit(mask)
     else:
