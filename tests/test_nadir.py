@@ -323,6 +323,31 @@ def test_ransac_sun_unknown_alpha():
     assert math.degrees(res.fit.alpha) == pytest.approx(2.5, abs=0.01)
 
 
+def test_ransac_adaptive_stop_counts_the_pre_verification():
+    """With pre-verification on d rays a good minimal sample is kept only if those d rays are
+    inliers too (000 §2.3), so the adaptive stop needs k = log(1 - p) / log(1 - w^(3 + d))
+    samples, not log(1 - p) / log(1 - w^3) (~9x fewer at w = 0.6, d = 4). A Sun disc's exact
+    rays with 40 % outliers: once the disc is found (w = 0.6 exactly), every run goes on to at
+    least k = 163 samples (p = 0.99), and it stops well before the cap."""
+    e = _direction(30.0, 50.0)
+    alpha = math.radians(2.0)
+    rng = np.random.default_rng(11)
+    t = rng.uniform(0, 2 * np.pi, 120)
+    u1 = np.cross(e, [1.0, 0, 0])
+    u1 /= np.linalg.norm(u1)
+    u2 = np.cross(e, u1)
+    good = math.cos(alpha) * e + math.sin(alpha) * (np.cos(t)[:, None] * u1 + np.sin(t)[:, None] * u2)
+    bad = e + rng.uniform(-0.12, 0.12, (80, 3))
+    rays = np.vstack([good, bad / np.linalg.norm(bad, axis=1, keepdims=True)])
+    k = math.ceil(math.log(0.01) / math.log(1.0 - 0.6 ** 7))
+    assert k == 163
+    for seed in range(40):
+        res = ransac_cone(rays, np.random.default_rng(seed), alpha=None, threshold=2e-4, confidence=0.99,
+                          max_hypotheses=20000, n_preverify=4, batch=8)
+        assert res.inliers[:120].all() and not res.inliers[120:].any()
+        assert k <= res.n_hypotheses < 2000, (seed, res.n_hypotheses)
+
+
 def test_ransac_bad_input():
     rays = unproject(CAM, np.array([[10.0, 10.0], [20.0, 30.0], [40.0, 5.0], [100, 100]]))
     with pytest.raises(ValueError, match="threshold"):

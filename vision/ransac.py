@@ -14,7 +14,9 @@ Pre-verification (000 §2.3 step 3): each hypothesis is first scored on ``n_prev
 random rays; only those with all of them within the threshold are scored on all m rays. Scoring is
 the angular distance |acos(p^T e) - alpha|, in one numba kernel per batch (`_score_hypotheses`,
 the draws stay with ``rng.integers``). The number of hypotheses adapts to the best inlier ratio w
-found so far: k = log(1 - confidence) / log(1 - w^3). The largest consensus set is refitted with
+found so far: k = log(1 - confidence) / log(1 - w^(3 + d)), d = ``n_preverify`` (a good minimal
+sample is kept only when its d pre-verification rays are inliers as well, probability w^d; with
+w^3 alone the stop came ~9x too early at w = 0.6, d = 4). The largest consensus set is refitted with
 `vision.nadir.nadir_from_horizon` (or `direction_and_radius`) and the inliers are re-selected
 once against the refit.
 """
@@ -202,7 +204,8 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
             if w >= 1.0:
                 needed = n_hyp
             else:
-                denom = math.log(max(1.0 - w**3, 1e-300))
+                # a good sample survives only if its n_preverify further rays are inliers too
+                denom = math.log(max(1.0 - w ** (3 + n_preverify), 1e-300))
                 needed = int(math.ceil(math.log(1.0 - confidence) / denom)) if denom < 0 else max_hypotheses
     if best_mask is None or best_count < max(min_inliers, 3):
         raise ValueError(f"ransac_cone: no consensus set of at least {max(min_inliers, 3)} rays "
