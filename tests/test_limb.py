@@ -289,3 +289,36 @@ def test_limb_near_the_sun_with_the_phase_slope():
         assert res.targets["earth"].limb_path == "limb", res.targets["earth"].limb_path
         errs[w] = angle_deg(res.record("earth").e_c, fr.e_c_earth)
     assert errs[opts.aerosol_weight] < 0.85 * errs[0.0], errs
+
+
+def test_flank_residual_is_the_direct_radiance_misfit():
+    """`_flank_residual` with the h0-independent terms of `_flank_terms` against the misfit
+    computed directly from `_limb_radiance(h0 + dh_k, mu_k)` (daylight and twilight samples, some
+    in the Earth's shadow at the lower heights): equal to 1e-9 relative (exp(a + b) against
+    exp(a) exp(b): a few ulp per sample, summed over squares)."""
+    from vision.limb import _flank_residual, _flank_terms, _limb_radiance
+    rng = np.random.default_rng(4)
+    H, R, A = 8000.0, 6371e3, 0.9
+    C = math.sqrt(math.pi * R / (2.0 * H))
+    n = 60
+    dh = np.sort(rng.uniform(-20e3, 40e3, n))
+    mu = np.concatenate([rng.uniform(0.0, 0.9, n // 2), rng.uniform(-0.08, -0.001, n - n // 2)])
+    ph = rng.uniform(0.8, 1.2, n)
+    w = rng.uniform(0.5, 2.0, n)
+    L = rng.uniform(0.0, 0.3, n)
+    E, Q, hmin = np.empty(n), np.empty(n), np.empty(n)
+    _flank_terms(dh, mu, n, A, H, C, R, E, Q, hmin)
+    sw, sl, sll = float(w.sum()), float((w * L).sum()), float((w * L * L).sum())
+    shadowed = 0
+    for h0 in (2e3, 8e3, 20e3, 45e3, 90e3):
+        g = np.array([ph[k] * _limb_radiance(h0 + dh[k], mu[k], 0.0, 0.0, A, H, C, R) for k in range(n)])
+        shadowed += int(np.sum(g == 0.0))
+        sgg, sg, sgl = (w * g * g).sum(), (w * g).sum(), (w * g * L).sum()
+        det = sgg * sw - sg * sg
+        K = (sgl * sw - sl * sg) / det
+        b = (sgg * sl - sg * sgl) / det
+        ss = sll - 2 * K * sgl - 2 * b * sl + K * K * sgg + 2 * K * b * sg + b * b * sw
+        f, K2, b2 = _flank_residual(h0, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)
+        assert f == pytest.approx(max(ss, 0.0), rel=1e-9, abs=1e-15)
+        assert K2 == pytest.approx(K, rel=1e-9) and b2 == pytest.approx(b, rel=1e-9, abs=1e-12)
+    assert shadowed > 0     # the shadow branch was exercised
