@@ -964,19 +964,7 @@ def _gate_reachable(H: np.ndarray, predicted: np.ndarray, alpha: float | None, r
     accepted fit) must lie within ``reach`` [rad] of a cone of half-angle ``alpha`` about the unit
     direction ``predicted`` (Earth: | angle - alpha | <= reach), or within ``reach`` of ``predicted``
     itself (Sun/Moon, ``alpha`` None; their inliers lie within gate + alpha_max + threshold)."""
-    return _count_near(H, predicted, -1.0 if alpha is None else alpha, reach) >= need
-
-
-@numba.njit(cache=True)
-def _count_near(H, p, alpha, reach):  # pragma: no cover - numba
-    """Rays within ``reach`` of the cone (p, alpha), or of p itself when alpha < 0."""
-    n = 0
-    for j in range(H.shape[0]):
-        c = H[j, 0] * p[0] + H[j, 1] * p[1] + H[j, 2] * p[2]
-        d = math.acos(-1.0 if c < -1.0 else (1.0 if c > 1.0 else c))
-        if (d <= reach) if alpha < 0.0 else (abs(d - alpha) <= reach):
-            n += 1
-    return n
+    return int(np.count_nonzero(within_cone(H, predicted, 0.0 if alpha is None else alpha, reach))) >= need
 
 
 def _score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: TargetConfig,

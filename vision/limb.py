@@ -696,16 +696,25 @@ def _limb_radiance(h, mu_c, k, h_c, A, H, C, R):
     ``A = tau 2C``), the Sun-elevation sine at the tangent point changing down the profile as
     ``mu(h) = mu_c + k (h - h_c)``; 0 in the Earth's shadow (twilight: the sunray's own lowest
     point below the surface)."""
-    mu = min(1.0, max(-1.0, mu_c + k * (h - h_c)))
+    q, h_shadow = _sun_path_term(mu_c + k * (h - h_c), A, H, C, R)
+    if h < h_shadow:
+        return 0.0
     e = math.exp(-h / H)
-    if mu >= 0.0:
-        tms = A / (2.0 * C) * e / math.sqrt(mu * mu + 1.0 / (C * C))
-    else:                                    # twilight: `sun_path_ratio`
-        hs = h - 0.5 * R * mu * mu
-        if hs < 0.0:
-            return 0.0
-        tms = 0.5 * A * math.exp(-hs / H) * (1.0 + math.erf(-mu * C / math.sqrt(math.pi)))
-    return -math.expm1(-A * e) * math.exp(-tms)
+    return -math.expm1(-A * e) * math.exp(-q * e)
+
+
+@numba.njit(cache=True)
+def _sun_path_term(mu, A, H, C, R):
+    """``(q, h_shadow)`` of the sunlight's path to a tangent point with Sun-elevation sine mu
+    (clipped to [-1, 1]): its optical depth is ``q exp(-h / H)`` at tangent height h (``A / (2C) /
+    sqrt(mu^2 + 1/C^2)``; twilight, `sun_path_ratio`: ``A/2 exp(R mu^2 / (2H)) (1 + erf(-mu C /
+    sqrt(pi)))``), and below ``h_shadow`` (``R mu^2 / 2``; -inf in daylight) the point lies in the
+    Earth's shadow. Shared by `_limb_radiance` and the flank fit's per-sample terms."""
+    m = min(1.0, max(-1.0, mu))
+    if m >= 0.0:
+        return A / (2.0 * C) / math.sqrt(m * m + 1.0 / (C * C)), -math.inf
+    sh = 0.5 * R * m * m
+    return 0.5 * A * math.exp(sh / H) * (1.0 + math.erf(-m * C / math.sqrt(math.pi))), sh
 
 
 @numba.njit(cache=True)
@@ -825,20 +834,13 @@ def profile_height_shift(mu_s: np.ndarray, dmu_dh: np.ndarray, fraction: float =
 def _flank_terms(dh, mu, n, A, H, C, R, E, Q, hmin):
     """The parts of ``_limb_radiance(h0 + dh_k, mu_k, 0, 0, ...)`` that do not depend on h0, for
     the n samples of one profile: ``E_k = exp(-dh_k / H)``, ``Q_k`` with ``tms = Q_k e`` (``e =
-    exp(-h0 / H) E_k``; ``A / (2C) / sqrt(mu^2 + 1/C^2)``, twilight ``A/2 exp(R mu^2 / (2H))
-    (1 + erf(-mu C / sqrt(pi)))``) and ``hmin_k``, the h0 below which the sample lies in the
-    Earth's shadow (-inf in daylight). The flank fit evaluates the profile at ~55 heights h0: with
+    exp(-h0 / H) E_k``, `_sun_path_term`) and ``hmin_k``, the h0 below which the sample lies in
+    the Earth's shadow (-inf in daylight). The flank fit evaluates the profile at ~55 heights h0: with
     these, two transcendental functions per sample and height instead of four or five."""
     for k in range(n):
-        m = min(1.0, max(-1.0, mu[k]))
         E[k] = math.exp(-dh[k] / H)
-        if m >= 0.0:
-            Q[k] = A / (2.0 * C) / math.sqrt(m * m + 1.0 / (C * C))
-            hmin[k] = -math.inf
-        else:
-            sh = 0.5 * R * m * m
-            Q[k] = 0.5 * A * math.exp(sh / H) * (1.0 + math.erf(-m * C / math.sqrt(math.pi)))
-            hmin[k] = sh - dh[k]
+        Q[k], h_shadow = _sun_path_term(mu[k], A, H, C, R)
+        hmin[k] = h_shadow - dh[k]
 
 
 @numba.njit(cache=True)
