@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from nav import ins
 from nav.navigator import NavResult
+from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 
 
 def rts(xs_post, Ps_post, xs_prior, Ps_prior, Phis):
@@ -122,7 +122,7 @@ def _chol_solve(U, B):
             B[i, c] *= inv
 
 
-@nb.njit(cache=True, fastmath={"contract"})
+@nb.njit(cache=True, nogil=True, fastmath={"contract"})
 def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Ps, k_start):
     """Backward RTS pass of :func:`rts_smooth` (module docstring) from epoch ``k_start`` down to 0.
 
@@ -241,6 +241,5 @@ def rts_smooth(res: NavResult, *, keep_full: bool = False) -> SmoothResult:
     lay = res.layout
     x = res.x_e[idx] + d[:, lay["dx"]]
     v = res.v_e[idx] + d[:, lay["dv"]]
-    q = np.array([ins.R_to_quat(ins.rotvec_to_R(np.ascontiguousarray(d[i, lay["psi"]])) @ ins.quat_to_R(res.q_eb[j]))
-                  for i, j in enumerate(idx)])
+    q = matrix_to_quat(rotvec_to_matrix(d[:, lay["psi"]]) @ quat_to_matrix(res.q_eb[idx]))
     return SmoothResult(res.t_ns[idx], idx, d, Pd, x, v, q)

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import threading
 import types
 
 import numpy as np
@@ -330,10 +331,10 @@ def _recorded_images(rrd, cams) -> dict:
 def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypatch):
     """Images sent in batches of ~2 frames (bounded memory for long video logs, Rerun flushed
     between batches): the recording read back with Rerun's own reader holds every frame's JPEG
-    bytes of the log, byte for byte, in time order; so does the recording the preload thread
-    begins with the vision's jobs while the workers run."""
+    bytes of the log, byte for byte, in time order. Abandoned, the recording process leaves no file."""
     from scenarios.replay import rerun_view
-    from scenarios.replay.pipeline import _Preload, replay
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.recording_process import RecordingProcess
     from scenarios.replay.inputs import load_inputs
     inp = load_inputs(ilog)
     limit = int(2.5 * max(c.images.sizes.max() for c in inp.cameras.values()))
@@ -349,26 +350,16 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
         st = inp.cameras[k].images
         want[k] = [st[int(np.searchsorted(st.t_ns, x))] for x in sorted(f.t_ns for f in rr.frames if f.k == k)]
     assert _recorded_images(rrd, cams) == want
+    # the recording process abandoned while it sends the images: it ends, its file is deleted
     jobs = [types.SimpleNamespace(k=f.k, t_ns=f.t_ns) for f in rr.frames]
-    pre = _Preload(jobs, begin=lambda j, stop: rerun_view.begin(rr.inputs, j, cams, tmp_path / "p.rrd", stop=stop))
-    pre.start()
-    rec = pre.recording(rr.frames)
-    assert rec is not None and pre.rec is None
-    rec.rec.flush()
-    rec.rec.disconnect()
-    assert _recorded_images(rec.tmp, cams) == want
-    # other frames than the jobs': the begun recording is abandoned (its file deleted), None returned
-    pre = _Preload(jobs, begin=lambda j, stop: rerun_view.begin(rr.inputs, j, cams, tmp_path / "q.rrd", stop=stop))
-    pre.start()
-    assert pre.recording(rr.frames[1:]) is None
-    assert not list(tmp_path.glob(".q.rrd*"))
-    # stopped (the replay interrupted): begin stops sending, the file is deleted, no recording
-    pre = _Preload(jobs, begin=lambda j, stop: rerun_view.begin(rr.inputs, j, cams, tmp_path / "s.rrd", stop=stop))
-    pre.stop.set()
-    pre.start()
-    pre.abandon()
-    assert pre.rec is None and not list(tmp_path.glob(".s.rrd*"))
+    rec = RecordingProcess(rr.inputs, cams, tmp_path / "p.rrd")
+    rec.begin(jobs)
+    rec.abandon()
+    assert not list(tmp_path.glob("*p.rrd*"))
+    # begin told to stop (the replay interrupted): it stops sending, the file is deleted
+    stop = threading.Event()
+    stop.set()
     with pytest.raises(rerun_view.RecordingStopped):
-        rerun_view.begin(rr.inputs, jobs, cams, tmp_path / "t.rrd", stop=pre.stop)
+        rerun_view.begin(rr.inputs, jobs, cams, tmp_path / "t.rrd", stop=stop)
     assert not list(tmp_path.glob(".t.rrd*")) and not (tmp_path / "t.rrd").exists()
 

@@ -26,6 +26,59 @@ def test_recording_reads_back(vlog, tmp_path):
         assert path in out, path
 
 
+def test_recording_in_this_process_without_fork(vlog, tmp_path, monkeypatch):
+    """Where ``fork`` is unavailable the recording is drawn in the replay's process, synchronously:
+    the same recording (the entity paths of both, `rerun rrd print`)."""
+    import multiprocessing as mp
+    from scenarios.replay.pipeline import replay
+    a, b = tmp_path / "fork.rrd", tmp_path / "local.rrd"
+    replay(vlog, _opt(output=str(tmp_path / "a.solution.mcap"), rrd=str(a)))
+    monkeypatch.setattr(mp, "get_all_start_methods", lambda: ["spawn"])
+    rr = replay(vlog, _opt(output=str(tmp_path / "b.solution.mcap"), rrd=str(b)))
+    assert rr.rrd_path == b and b.is_file() and rr.rerun_timings.get("flush") is not None
+
+    def paths(f):
+        out = subprocess.run([RERUN, "rrd", "print", str(f)], capture_output=True, text=True).stdout
+        got = {ln.split(" - ")[1] for ln in out.splitlines() if ln.startswith("Chunk(") and " - /" in ln}
+        return {p for p in got if not p.startswith(("/view/", "/container/"))}   # the blueprint's ids are random
+    assert paths(a) == paths(b) and "/world/trajectory" in paths(b)
+
+
+def test_unwritable_recording_is_a_clear_error(vlog, tmp_path):
+    """An --rrd path that cannot be written (its folder is a file): a UserError naming the path,
+    before anything is computed (no solution file left, no recording process started)."""
+    import multiprocessing as mp
+    import pytest
+    from scenarios.errors import UserError
+    from scenarios.replay.pipeline import replay
+    (tmp_path / "afile").write_text("x")
+    out = tmp_path / "u.solution.mcap"
+    with pytest.raises(UserError, match=r"--rrd .*afile.*cannot be written"):
+        replay(vlog, _opt(output=str(out), rrd=str(tmp_path / "afile" / "u.rrd")))
+    assert not out.exists()
+    assert not [p for p in mp.active_children() if p.name == "horizon-nav-rerun"]
+
+
+def test_recording_failure_is_raised_and_the_solution_kept(vlog, tmp_path, monkeypatch):
+    """The recording process fails while drawing the time series (after the solution log is
+    being written): the replay raises its error with the process's traceback, the solution log is
+    complete, and neither the .rrd nor its temporary file remains."""
+    import pytest
+    from scenarios.log_reader import read_log
+    from scenarios.replay import rerun_view
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.recording_process import RecordingError
+
+    def broken(*a, **k):
+        raise ZeroDivisionError("drawing failed")
+    monkeypatch.setattr(rerun_view, "_timeseries", broken)     # inherited by the forked process
+    out = tmp_path / "f.solution.mcap"
+    with pytest.raises(RecordingError, match=r"ZeroDivisionError: drawing failed(.|\n)*_timeseries"):
+        replay(vlog, _opt(output=str(out), rrd=str(tmp_path / "f.rrd")))
+    assert read_log(out).complete is True
+    assert not [p for p in tmp_path.iterdir() if "rrd" in p.name]
+
+
 def test_unaided_angle_residual_matches_free_inertial_prediction(vlog, tmp_path):
     """fig. 42 a: the angle between a measured Earth vector and the one predicted with the
     free-inertial attitude equals the angle recomputed here from the geocentric nadir (003 eq.

@@ -21,11 +21,12 @@ Stages (timed; ``ReplayResult.timings``):
 4. **filter**: :func:`nav.navigator.run` (one call over the window; it cannot be resumed).
 5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
 6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
-7. **rerun**: the recording (:mod:`.rerun_view`), in three parts: begun with the camera images by
-   a thread while the vision workers run (:class:`_Preload`; Rerun's own threads encode and write
-   them), the front end's overlays right after the vision (encoded while the filter and the
-   smoother run here), finished after writing with the solution (3D scene, time series). Its time
-   is that of the last two parts (the first is hidden in the vision's).
+7. **rerun**: the recording (:mod:`.rerun_view`), drawn in a process of its own
+   (:mod:`.recording_process`) forked once the log is read: it imports Rerun and sends the camera
+   images while this process initialises, draws the front end's overlays while the filter runs,
+   the 3D scene while the smoother runs and the time series while the solution is written. The
+   stage's time here is what this process waits for it (at the end, and the sending of the
+   overlays); its CPU time is the recording process's whole.
 
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
 (``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that
@@ -223,6 +224,33 @@ def _truth_init(inp, imu) -> InitialState:
 
 def replay(path, opt: ReplayOptions) -> ReplayResult:
     """Run the replay of the log at ``path`` (module docstring). Raises UserError for bad input."""
+    with _small_pages():
+        return _replay(path, opt)
+
+
+@contextmanager
+def _small_pages():
+    """numpy without transparent huge pages for the run (restored after). numpy asks the kernel
+    for huge pages (``madvise``) for every array of 4 MB or more; the filter's, the smoother's and
+    the writer's output arrays (~140 MB for the demo, written once, epoch by epoch) then fault in
+    2 MB at a time, each zeroed by the kernel on first touch: the demo's filter stage took 0.43-0.55 s
+    with them against 0.30-0.34 s without (three runs each, alternating). numpy reads its
+    documented switch (``NUMPY_MADVISE_HUGEPAGE``) only at import; the runtime switch is private,
+    hence looked up and skipped when absent. The vision's per-frame arrays are reused from frame
+    to frame and see no difference (5.1-5.4 ms per frame either way)."""
+    mod = getattr(np, "_core", None) or getattr(np, "core", None)
+    switch = getattr(getattr(mod, "multiarray", None), "_set_madvise_hugepage", None)
+    if switch is None:
+        yield
+        return
+    before = switch(False)
+    try:
+        yield
+    finally:
+        switch(before)
+
+
+def _replay(path, opt: ReplayOptions) -> ReplayResult:
     from nav.navigator import run as nav_run
     from scenarios.log_writer import LogWriter
     from scenarios.tuning_file import load_tuning
@@ -314,73 +342,78 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
     frames = []
     vectors = None
     res = sm = None
-    recording = preload = None
+    rec = None       # the recording process
+    warm = None      # the filter's warm-up thread
     rerun_parts: dict = {}
     want_rrd = opt.rrd != "" or opt.spawn
     rrd = None if not want_rrd or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
     track = gps.x_e if gps is not None and len(gps.t_ns) else None   # aims the recording's 3D view
-    if want_rrd:
-        from scenarios.replay import rerun_view as RV
     try:
+        if want_rrd:
+            # forked now: it imports Rerun and sends the images while this process initialises
+            from scenarios.replay.recording_process import RecordingProcess
+            rec = RecordingProcess(inp, cam_numbers, rrd, spawn=opt.spawn, track=track,
+                                   image_rate_hz=opt.rrd_image_rate_hz)
         if mode == "images":
             with prog.timed("init"):
                 plan = _image_plan(inp, cam_numbers, opt, a, b)
+                if rec is not None:
+                    rec.begin(plan.jobs)
                 # an attitude first (TRIAD on a sparse pass without attitude prior, or given/truth),
                 # then every frame with the free-inertial attitude as the vision's prior
                 pre = _triad_pass(plan, inp, cam_numbers, opt, imu) if opt.init in (None, "triad") else None
                 init, tri_init, init_method, _ = _initialise(opt, inp, imu, gps, pre, R_bc, mode, msgs)
                 _attach_priors(plan, imu, init, inp, cam_numbers)
-            # the recording begun with the images, and the filter's kernels loaded, in a thread while
-            # the workers run
-            preload = _Preload(plan.jobs, begin=(lambda jobs, stop: RV.begin(
-                inp, jobs, cam_numbers, rrd, spawn=opt.spawn, track=track, timings=rerun_parts,
-                image_rate_hz=opt.rrd_image_rate_hz, stop=stop)) if want_rrd else None,
-                warm=lambda: _warm_filter(imu, init, tuning, gps, pre, R_bc, opt.smoother))
+            # the filter's kernels loaded in a thread while the workers run
+            warm = threading.Thread(target=_warm_filter, args=(imu, init, tuning, gps, pre, R_bc, opt.smoother),
+                                    name="warm-filter", daemon=True)
             with prog.timed("vision", block=False):  # the frames are its steps
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
-                                              on_pool_start=preload.start if preload else None)
+                                              on_pool_start=warm.start)
                 if init_method == "triad" and vectors is not None:
                     try:   # TRIAD again on the vectors measured with the attitude prior
                         init, tri_init = _triad(imu, gps, vectors, R_bc)
                     except UserError as e:
                         msgs.append(f"TRIAD on the final vectors failed ({e}); kept the first TRIAD")
         else:
+            if rec is not None:
+                rec.begin([])
             if mode == "vectors":
                 vectors = _vectors_from_log(inp, cam_numbers, opt.targets, a, b)
             with prog.timed("init"):
                 init, tri_init, init_method, vectors = _initialise(opt, inp, imu, gps, vectors, R_bc, mode, msgs)
         gc.freeze()   # the vision results likewise
-        if want_rrd:
-            # the images (begun while the workers ran, else now) and the overlays: Rerun encodes and
-            # writes them (most of its bytes) in its own threads while the filter and the smoother
-            # run here
+        if rec is not None:
             with prog.timed("rerun", block=False):
-                recording = preload.recording(frames) if preload else None
-                if recording is None:
-                    recording = RV.begin(inp, frames, cam_numbers, rrd, spawn=opt.spawn, track=track,
-                                         timings=rerun_parts, image_rate_hz=opt.rrd_image_rate_hz)
-                RV.overlays(recording, inp, frames, cam_numbers)
-        if preload is not None:
-            preload.join()     # its warm-up run of the filter has ended
+                rec.check()
+                rec.overlays(frames)      # drawn while the filter runs here
+        if warm is not None and warm.ident is not None:
+            warm.join()     # its warm-up run of the filter has ended
         with prog.timed("filter"):
             try:
                 res = nav_run(imu, init, tuning, gps=gps, vectors=vectors, R_bc=R_bc,
                               store_for_smoother=opt.smoother)
             except ValueError as e:
                 raise UserError(f"filter: {e}") from None
+        if rec is not None:
+            rec.check()
+            rec.solution(res, vectors, frames)     # the 3D scene, drawn while the smoother runs
         if opt.smoother:
             with prog.timed("smoother"):
                 from nav.smoother import rts_smooth
                 sm = rts_smooth(res)
                 res.store = None
+        if rec is not None:
+            rec.finish(sm)         # the time series drawn and the file written while this one is
         with prog.timed("write"):
             SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
             w.close()
     except KeyboardInterrupt:
         prog.close()
-        _abandon_recording(recording, preload)
+        if rec is not None:
+            rec.abandon()
         stage = prog.current
         note = ""
         if stage == "vision":
@@ -393,17 +426,19 @@ def replay(path, opt: ReplayOptions) -> ReplayResult:
         raise
     except BaseException:
         prog.close()
-        _abandon_recording(recording, preload)
+        if rec is not None:
+            rec.abandon()
         w.discard()
         raise
-    if recording is not None:
+    if rec is not None:
         try:
             with prog.timed("rerun"):
-                RV.finish(recording, inp, res, sm, vectors, cam_numbers, frames)
+                rec.wait()
         except BaseException:
             prog.close()
-            _abandon_recording(recording)
+            rec.abandon()
             raise
+        rerun_parts.update(rec.timings)
     prog.close()
     return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, init_method, mode, msgs, tri_init,
                         cpu, rerun_parts)
@@ -486,74 +521,6 @@ def _correct_earth(vectors, imu, init, inp, R_bc):
     e = vectors.e_c.copy()
     e[m] = geocentric_correction(vectors.e_c[m], _gps_at(inp, t), R_ce)
     return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
-
-
-def _abandon_recording(recording, preload=None) -> None:
-    """Close an unfinished Rerun recording (if one was begun) and delete its temporary file; with
-    ``preload``, also stop its thread and delete the recording it began (:meth:`_Preload.abandon`)."""
-    if preload is not None:
-        preload.abandon()
-    if recording is not None:
-        from scenarios.replay.rerun_view import abandon
-        abandon(recording)
-
-
-class _Preload:
-    """While the vision workers run, this process only waits: a daemon thread begins the Rerun
-    recording with the camera images of the frames to process (``begin(jobs, stop)``:
-    :func:`.rerun_view.begin`: Rerun's and pandas' import, ~0.5 s in a new process, the JPEG bytes
-    read from the log and handed to Rerun, whose own threads encode and write them; it stops within
-    one send once the event ``stop`` is set, see :meth:`abandon`), then calls ``warm``
-    (the filter's numba kernels loaded by a short run, :func:`_warm_filter`). :meth:`start` is
-    called after the workers are forked, so that no fork happens while the thread holds a lock;
-    until then this process's image streams are not touched by the thread (single-process vision
-    reads them itself). :meth:`recording` (or :meth:`join`) before the filter runs;
-    :meth:`abandon` when the replay stops early."""
-
-    def __init__(self, jobs, begin=None, warm=None):
-        self.jobs, self.begin, self.warm = jobs, begin, warm
-        self.thread = None
-        self.rec = None
-        self.stop = threading.Event()
-
-    def start(self) -> None:
-        self.thread = threading.Thread(target=self._run, name="preload-rerun", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        if self.begin is not None:
-            try:
-                self.rec = self.begin(self.jobs, self.stop)
-            except Exception:  # noqa: BLE001 - the Rerun stage begins the recording again and reports the error
-                self.rec = None
-        if self.warm is not None and not self.stop.is_set():
-            try:
-                self.warm()
-            except Exception:  # noqa: BLE001 - a warm-up only: the filter itself reports its errors
-                pass
-
-    def join(self) -> None:
-        if self.thread is not None:
-            self.thread.join()
-
-    def recording(self, frames):
-        """The recording begun with the jobs' images, handed over, if ``frames`` are the jobs'
-        frames (the images are a function of the frames' cameras and times); else None (none
-        begun, its begin failed, or other frames: the caller begins the recording itself)."""
-        self.join()
-        rec, self.rec = self.rec, None
-        if rec is not None and sorted((f.k, f.t_ns) for f in frames) != sorted((j.k, j.t_ns) for j in self.jobs):
-            _abandon_recording(rec)
-            rec = None
-        return rec
-
-    def abandon(self) -> None:
-        """Stop the thread (the images within one send; an import under way ends first), wait for
-        it and delete the recording it began (the replay stops early)."""
-        self.stop.set()
-        self.join()
-        rec, self.rec = self.rec, None
-        _abandon_recording(rec)
 
 
 def _warm_filter(imu, init, tuning, gps, vectors, R_bc, smoother: bool) -> None:

@@ -128,7 +128,7 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     tmp = None
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(path).with_name("." + Path(path).name + ".tmp")
+        tmp = temporary_path(path)
         rec.save(str(tmp), default_blueprint=blueprint(cam_numbers, track))
     if spawn:
         rec.spawn(default_blueprint=blueprint(cam_numbers, track))
@@ -154,18 +154,27 @@ def overlays(r: Recording, inp, frames, cam_numbers) -> None:
     r.timings["overlays"] = time.perf_counter() - t
 
 
-def finish(r: Recording, inp, res, smooth, vectors, cam_numbers, frames) -> Path | None:
-    """Send the solution (trajectory, 3D scene, time series), wait for Rerun to write everything
-    and move the file to its name; returns the path."""
+def solution(r: Recording, inp, res, vectors, cam_numbers, frames) -> None:
+    """The forward solution's static parts (ellipsoid, trajectory, camera models) and the 3D scene
+    (``frames``: anything with ``k`` and ``t_ns``)."""
+    import time
+    import rerun as rr
+    for name, fn, args in (("static", _static, (r.rec, rr, inp, res)),
+                           ("scene", _scene, (r.rec, rr, inp, res, vectors, cam_numbers, frames))):
+        t = time.perf_counter()
+        fn(*args)
+        r.timings[name] = r.timings.get(name, 0.0) + time.perf_counter() - t
+
+
+def finish(r: Recording, inp, res, smooth, vectors, cam_numbers) -> Path | None:
+    """The time series (after :func:`solution`), then wait for Rerun to write everything and move
+    the file to its name; returns the path."""
     import time
     import rerun as rr
     tm = r.timings
-    for name, fn, args in (("static", _static, (r.rec, rr, inp, res)),
-                           ("scene", _scene, (r.rec, rr, inp, res, vectors, cam_numbers, frames)),
-                           ("series", _timeseries, (r.rec, rr, inp, res, smooth, vectors, cam_numbers))):
-        t = time.perf_counter()
-        fn(*args)
-        tm[name] = tm.get(name, 0.0) + time.perf_counter() - t
+    t = time.perf_counter()
+    _timeseries(r.rec, rr, inp, res, smooth, vectors, cam_numbers)
+    tm["series"] = tm.get("series", 0.0) + time.perf_counter() - t
     t = time.perf_counter()
     r.rec.flush()
     if r.tmp is not None:
@@ -173,6 +182,11 @@ def finish(r: Recording, inp, res, smooth, vectors, cam_numbers, frames) -> Path
         r.tmp.replace(r.path)
     tm["flush"] = time.perf_counter() - t
     return r.path
+
+
+def temporary_path(path: Path) -> Path:
+    """The name a recording is written to until :func:`finish` moves it to ``path``."""
+    return Path(path).with_name("." + Path(path).name + ".tmp")
 
 
 def abandon(r: Recording | None) -> None:
