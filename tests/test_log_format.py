@@ -287,6 +287,32 @@ def test_vectorised_codec_matches_mcap_ros2_bytes(short):
             _eq(np.asarray(got).reshape(np.shape(v)), v)
 
 
+def test_image_data_parsed_directly_as_mcap_ros2_writes_it():
+    """The direct parse of one CompressedImage (scenarios.log_reader._compressed_image_data) gives
+    the data bytes of messages serialised by mcap_ros2 (frame_id and format of every length
+    mod 4, so every alignment; empty data included); truncated or wrongly encapsulated messages
+    give None (the general decoder then reports them)."""
+    from mcap_ros2._dynamic import serialize_dynamic
+    from scenarios.log_reader import IMAGE_TYPE, _compressed_image_data
+    short = "sensor_msgs/CompressedImage"
+    assert IMAGE_TYPE == short
+    enc = serialize_dynamic(short, lf.schema_text(short))[short]
+    rng = np.random.default_rng(5)
+    for fid in range(6):
+        for fmt in ("", "j", "png", "jpeg", "rgb8; jpeg compressed bgr8"):
+            for n in (0, 1, 5, 300):
+                data = bytes(rng.integers(0, 256, n, dtype=np.uint8))
+                msg = bytes(enc({"header": {"stamp": {"sec": 7, "nanosec": 9}, "frame_id": "c" * fid},
+                                 "format": fmt, "data": list(data)}))
+                buf = b"\xff" * 3 + msg + b"\xee" * 5        # inside a chunk, neighbours around it
+                assert _compressed_image_data(buf, 3, len(msg)) == data, (fid, fmt, n)
+                for cut in (len(msg) - 1, len(msg) - n - 1, 10):
+                    if 0 < cut < len(msg) and (n > 0 or cut < len(msg) - 4):
+                        assert _compressed_image_data(buf, 3, cut) is None, (fid, fmt, n, cut)
+    bad = b"\x01\x00" + msg[2:]                                # big-endian encapsulation: not parsed
+    assert _compressed_image_data(bad, 0, len(bad)) is None
+
+
 def test_foreign_imu_file_uses_the_fast_path(tmp_path):
     """A sensor_msgs/Imu log written by mcap_ros2 with the ROS 2 schema text (comments, another
     frame id) reads the same values as the reference decoder."""

@@ -449,6 +449,8 @@ class TargetResult:
     # with d calibrated on the usable limb profiles), "" (threshold edge with atmosphere_m)
     limb_d_m: float = math.nan  # effective thickness of the threshold edge [m]: calibrated d_thr, or
     # the mean height fitted on the profile flanks
+    cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the
+    # visible horizon's cone (its conic type; drawn by the replay's overlay)
 
 
 @dataclass
@@ -1448,7 +1450,8 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
             g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
             g /= 1e-3
             P = P + sigma_d**2 * np.outer(g, g)
-        conic = conic_type(e_c, _median(angle_residuals(rays_c[inl], e_c, 0.0)))[1]
+        out.cone_alpha = _median(angle_residuals(rays_c[inl], e_c, 0.0))
+        conic = conic_type(e_c, out.cone_alpha)[1]
     else:
         e_c = fit.e_c
         cov = direction_covariance(rays_c[inl], J[inl], fit.n, tc.R_px2, L_eff, method="linear")

@@ -70,7 +70,7 @@ def _sub(a, n: int):
 
 
 def _overlay(camera, res) -> dict:
-    from vision.camera import project, unproject
+    from vision.camera import project
     from vision.frontend import conic_polyline
     out = {}
     for name, tr in res.targets.items():
@@ -83,10 +83,9 @@ def _overlay(camera, res) -> dict:
             o["outliers"] = _sub(tr.points[~tr.inlier_mask], 300)
         rec = tr.record
         if rec is not None:
-            alpha = rec.alpha
-            if name == "earth" and tr.points is not None and tr.inlier_mask is not None and tr.inlier_mask.any():
-                rays = unproject(camera, tr.points[tr.inlier_mask])
-                alpha = float(np.median(np.arccos(np.clip(rays @ rec.e_c, -1.0, 1.0))))
+            # the Earth: the visible horizon's cone about the geocentric nadir (the front end's
+            # median inlier angle), not the fit's cone of the model
+            alpha = tr.cone_alpha if math.isfinite(tr.cone_alpha) else rec.alpha
             poly = conic_polyline(camera, rec.e_c, alpha, 360)
             ok = np.all(np.isfinite(poly), axis=1) & (poly[:, 0] > -0.5 * camera.width) \
                 & (poly[:, 0] < 1.5 * camera.width) & (poly[:, 1] > -0.5 * camera.height) & (poly[:, 1] < 1.5 * camera.height)
