@@ -168,6 +168,7 @@ def _warm() -> None:
 
 def _init_spawned(cameras, config, masks) -> None:
     _init(cameras, config, masks)
+    _lower_priority()
     _warm()
 
 
@@ -251,6 +252,22 @@ def _chunks(jobs: list, size: int, workers: int) -> list:
 def _init_forked() -> None:
     import cv2
     cv2.setNumThreads(1)
+    _lower_priority()
+
+
+#: niceness added to the vision workers (see :func:`_lower_priority`)
+WORKER_NICE = 5
+
+
+def _lower_priority() -> None:
+    """The workers run at a lower priority than the replay's process and its recording process:
+    when those have work (the recording's images and Rerun's encoding early on, the filter and
+    the overlays later) they get a core at once instead of a third of two, and finish before the
+    workers do rather than after them; the workers use the time those leave."""
+    try:
+        os.nice(WORKER_NICE)
+    except (OSError, AttributeError):   # not permitted, or no os.nice (Windows)
+        pass
 
 
 def geocentric_correction(e_c: np.ndarray, x_e: np.ndarray, R_ce: np.ndarray) -> np.ndarray:
