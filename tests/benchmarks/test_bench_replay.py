@@ -19,7 +19,8 @@ Figures (``bench.json``):
 * ``replay.realtime_factor_demo`` and ``replay.realtime_factor_video30``: flight seconds replayed
   (baseline) / wall seconds of the whole ``replay()`` call (read, vision in worker processes, init,
   filter, smoother, solution MCAP, Rerun recording; the interpreter start-up excluded), with the
-  per-stage wall seconds, shares and CPU seconds (this process + workers) as extra keys. Issue 7
+  per-stage wall seconds, shares and CPU seconds (this process and its children: the vision
+  workers, the Rerun recording process) as extra keys. Issue 7
   asks for >= 100x (demo) and >= 5x (video30). On 2 cores the vision front end's CPU time per
   frame bounds the demo's factor: ``stages.vision.cpu_s / frames`` is that figure.
 * ``replay.realtime_factor_video30_vision5hz``: the same with ``--vision-rate 5`` (every 6th frame
