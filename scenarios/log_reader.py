@@ -290,6 +290,22 @@ class _Reader:
         self._cache: tuple[int, bytes] | None = None
         self.issues: list[str] = []
 
+    def __getstate__(self):
+        """Pickled as the file's path, size and digest of its first MiB with the chunk table (the
+        image streams sent to another process): the receiver maps the file again."""
+        return {"path": self.path, "chunks": self.chunks, "issues": self.issues,
+                "identity": _identity(self.data)}
+
+    def __setstate__(self, st):
+        self.path, self.chunks, self.issues = st["path"], st["chunks"], st["issues"]
+        self._cache = None
+        try:
+            self.data = _map(self.path)
+        except OSError as e:
+            raise LogFormatError(f"{self.path}: cannot read log ({e.strerror or e})") from None
+        if _identity(self.data) != st["identity"]:
+            raise LogFormatError(f"{self.path}: the log changed while it was being read")
+
     def warn(self, msg: str) -> None:
         self.issues.append(msg)
         warnings.warn(msg, LogWarning, stacklevel=4)
@@ -319,6 +335,12 @@ class _Reader:
 # --------------------------------------------------------------------------------------------
 # read_log
 # --------------------------------------------------------------------------------------------
+def _identity(data) -> tuple:
+    """Size and a digest of the first MiB of a log's bytes (enough to tell a replaced file)."""
+    import hashlib
+    return len(data), hashlib.blake2b(data[:1 << 20], digest_size=16).hexdigest()
+
+
 def _map(path: Path):
     """The file's bytes as a read-only memory map (an empty file: ``b""``): a long video log is
     not copied into this process (images are read on demand, and forked vision workers share the

@@ -313,6 +313,25 @@ def test_image_data_parsed_directly_as_mcap_ros2_writes_it():
     assert _compressed_image_data(bad, 0, len(bad)) is None
 
 
+def test_image_stream_pickles_as_path_and_index(full_log, tmp_path):
+    """An image stream sent to another process (pickle) maps the file again and reads the same
+    bytes; a file replaced meanwhile is an error naming it, not other images."""
+    import pickle
+    import shutil
+    from scenarios.log_reader import LogFormatError, read_log
+    path, d = full_log
+    copy = tmp_path / "copy.mcap"
+    shutil.copy(path, copy)
+    st = read_log(copy).cameras[2].images
+    blob = pickle.dumps(st)
+    assert len(blob) < 4096                       # the index, not the images
+    again = pickle.loads(blob)
+    assert [again[i] for i in range(len(again))] == d["jpegs"]
+    _write_all(copy, {**d, "jpegs": [b"x" + j for j in d["jpegs"]]})
+    with pytest.raises(LogFormatError, match="copy.mcap: the log changed"):
+        pickle.loads(blob)
+
+
 def test_foreign_imu_file_uses_the_fast_path(tmp_path):
     """A sensor_msgs/Imu log written by mcap_ros2 with the ROS 2 schema text (comments, another
     frame id) reads the same values as the reference decoder."""

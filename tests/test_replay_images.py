@@ -399,7 +399,8 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
     assert _recorded_images(rrd, cams) == want
     # the recording process abandoned while it sends the images: it ends, its file is deleted
     jobs = [types.SimpleNamespace(k=f.k, t_ns=f.t_ns) for f in rr.frames]
-    rec = RecordingProcess(rr.inputs, cams, tmp_path / "p.rrd")
+    rec = RecordingProcess()
+    rec.setup(rr.inputs, cams, tmp_path / "p.rrd")
     rec.begin(jobs)
     rec.abandon()
     assert not list(tmp_path.glob("*p.rrd*"))

@@ -22,8 +22,8 @@ Stages (timed; ``ReplayResult.timings``):
 5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
 6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
 7. **rerun**: the recording (:mod:`.rerun_view`), drawn in a process of its own
-   (:mod:`.recording_process`) forked once the log is read: it imports Rerun and sends the camera
-   images while this process initialises, draws the front end's overlays while the filter runs,
+   (:mod:`.recording_process`) forked when the replay starts: it imports Rerun while the log is
+   read here, sends the camera images while this process initialises, draws the front end's overlays while the filter runs,
    the 3D scene while the smoother runs and the time series while the solution is written. The
    stage's time here is what this process waits for it (at the end, and the sending of the
    overlays); its CPU time is the recording process's whole.
@@ -225,7 +225,17 @@ def _truth_init(inp, imu) -> InitialState:
 def replay(path, opt: ReplayOptions) -> ReplayResult:
     """Run the replay of the log at ``path`` (module docstring). Raises UserError for bad input."""
     with _small_pages():
-        return _replay(path, opt)
+        rec = None
+        if opt.rrd != "" or opt.spawn:
+            # forked now: it imports Rerun while this process reads the log
+            from scenarios.replay.recording_process import RecordingProcess
+            rec = RecordingProcess()
+        try:
+            return _replay(path, opt, rec)
+        except BaseException:
+            if rec is not None:
+                rec.abandon()
+            raise
 
 
 @contextmanager
@@ -250,7 +260,7 @@ def _small_pages():
         switch(before)
 
 
-def _replay(path, opt: ReplayOptions) -> ReplayResult:
+def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
     from nav.navigator import run as nav_run
     from scenarios.log_writer import LogWriter
     from scenarios.tuning_file import load_tuning
@@ -342,7 +352,6 @@ def _replay(path, opt: ReplayOptions) -> ReplayResult:
     frames = []
     vectors = None
     res = sm = None
-    rec = None       # the recording process
     warm = None      # the filter's warm-up thread
     rerun_parts: dict = {}
     want_rrd = opt.rrd != "" or opt.spawn
@@ -351,11 +360,8 @@ def _replay(path, opt: ReplayOptions) -> ReplayResult:
     R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
     track = gps.x_e if gps is not None and len(gps.t_ns) else None   # aims the recording's 3D view
     try:
-        if want_rrd:
-            # forked now: it imports Rerun and sends the images while this process initialises
-            from scenarios.replay.recording_process import RecordingProcess
-            rec = RecordingProcess(inp, cam_numbers, rrd, spawn=opt.spawn, track=track,
-                                   image_rate_hz=opt.rrd_image_rate_hz)
+        if rec is not None:     # it sends the images while this process initialises
+            rec.setup(inp, cam_numbers, rrd, spawn=opt.spawn, track=track, image_rate_hz=opt.rrd_image_rate_hz)
         if mode == "images":
             with prog.timed("init"):
                 plan = _image_plan(inp, cam_numbers, opt, a, b)

@@ -4,34 +4,37 @@ Why a process: the recording costs ~0.9 s of CPU in the demo replay (importing R
 the camera images 0.3-0.5 s, then overlays, 3D scene, time series and Rerun's own encoding and
 writing threads) and ~1.3 s in a 30 frames/s video replay. In the replay's process it competed
 with the vision workers for the two cores and ran after the filter; the demo replay took 3.5-3.8 s
-without a recording against 4.1-4.4 s with one. Forked once the log is read, the process imports
-Rerun and sends the images while the replay's process initialises (one core idle), and draws the
-solution while the replay's process smooths and writes it.
+without a recording against 4.1-4.4 s with one. Forked when the replay starts, the process
+imports Rerun while the replay's process reads the log (one core idle), sends the images while
+that one initialises, and draws the solution while it smooths and writes it.
 
 The replay's process sends commands through a queue (its feeder thread pickles them, so a send
 does not wait for the recording process to be free) and does not import Rerun at all:
 
-1. :meth:`RecordingProcess.begin` with the frames to show (anything with ``k`` and ``t_ns``): open
+1. :meth:`RecordingProcess.setup` with the inputs once the log is read (:func:`drawn_inputs`: the
+   image streams go as their file's path and index, the file is mapped again there);
+2. :meth:`RecordingProcess.begin` with the frames to show (anything with ``k`` and ``t_ns``): open
    the recording (:func:`.rerun_view.begin`) and send the camera images;
-2. :meth:`RecordingProcess.overlays` with the front end's results (:func:`.rerun_view.overlays`);
-3. :meth:`RecordingProcess.solution` with the filter's result (:func:`.rerun_view.solution`: 3D
+3. :meth:`RecordingProcess.overlays` with the front end's results (:func:`.rerun_view.overlays`);
+4. :meth:`RecordingProcess.solution` with the filter's result (:func:`.rerun_view.solution`: 3D
    scene), the covariances the drawing does not use left out;
-4. :meth:`RecordingProcess.finish` with the smoother's result (:func:`.rerun_view.finish`: time
-   series, flush, the file moved to its name): waits for the process and returns the path, or
-   raises the process's error.
+5. :meth:`RecordingProcess.finish` with the smoother's result (:func:`.rerun_view.finish`: time
+   series, flush, the file moved to its name), then :meth:`RecordingProcess.wait` for the file
+   (it returns the path or raises the process's error).
 
 :meth:`RecordingProcess.abandon` (an error or Ctrl-C in the replay) stops the images within one
 send, ends the process and deletes the temporary file: no half recording is left under the
 final name. The recording process ignores SIGINT (Ctrl-C reaches the whole process group): the
-replay decides. An ``--rrd`` path that cannot be written is a UserError before the process
-starts; :meth:`RecordingProcess.check` raises a later failure of the recording at the next stage
-instead of after the filter.
+replay decides. An ``--rrd`` path that cannot be written is a UserError in :meth:`setup`;
+:meth:`RecordingProcess.check` raises a later failure of the recording at the next stage instead
+of after the filter.
 
 Where ``fork`` is unavailable the same commands run in this process, synchronously.
 """
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import signal
 import threading
 import traceback
@@ -64,12 +67,15 @@ def drawn_result(res):
 class _Drawer:
     """The recording's state and the commands, run in the recording process (or here)."""
 
-    def __init__(self, inp, cam_numbers, rrd, spawn, track, image_rate_hz, stop):
-        self.inp, self.cam_numbers, self.rrd = inp, cam_numbers, rrd
-        self.spawn, self.track, self.image_rate_hz, self.stop = spawn, track, image_rate_hz, stop
+    def __init__(self, stop):
+        self.stop = stop
         self.r = None
         self.res = self.vectors = self.frames = None
         self.timings: dict = {}
+
+    def setup(self, inp, cam_numbers, rrd, spawn, track, image_rate_hz):
+        self.inp, self.cam_numbers, self.rrd = inp, cam_numbers, rrd
+        self.spawn, self.track, self.image_rate_hz = spawn, track, image_rate_hz
 
     def begin(self, frames):
         from scenarios.replay import rerun_view as RV
@@ -102,6 +108,7 @@ def _serve(drawer: _Drawer, commands, replies) -> None:
     abandons the recording and is sent back."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
+        importlib.import_module("rerun")    # while the replay's process reads the log
         while True:
             name, args = commands.get()
             if name == "abandon":
@@ -125,39 +132,54 @@ def _serve(drawer: _Drawer, commands, replies) -> None:
         replies.join_thread()
 
 
-class RecordingProcess:
-    """The recording of one replay (module docstring). ``rrd``: the .rrd path (None: viewer
-    only, ``spawn``); ``track``: GPS positions to aim the 3D view; ``image_rate_hz``: the
-    images' thinning (:func:`.rerun_view.shown_frames`)."""
+def drawn_inputs(inp):
+    """The replay's inputs without what the drawing does not read (GPS, the cameras' vectors, truth
+    and masks), to send to the recording process; the image streams pickle as their file's path
+    and index."""
+    cams = {k: dataclasses.replace(c, vectors=None, truth=None, mask=None) for k, c in inp.cameras.items()}
+    return dataclasses.replace(inp, gps=None, cameras=cams, notes=[])
 
-    def __init__(self, inp, cam_numbers, rrd: Path | None, *, spawn: bool = False, track=None,
-                 image_rate_hz: float | None = None):
+
+class RecordingProcess:
+    """The recording of one replay (module docstring), started before the log is read so that
+    Rerun's import overlaps the reading; :meth:`setup` with the inputs once they are read."""
+
+    def __init__(self):
         import multiprocessing as mp
-        self.rrd = None if rrd is None else Path(rrd)
+        self.rrd = None
         self.timings: dict = {}
         self._done = False
-        if self.rrd is not None:     # a path that cannot be written fails now, not after the filter
-            from scenarios.errors import UserError
-            from scenarios.replay.rerun_view import temporary_path
-            try:
-                self.rrd.parent.mkdir(parents=True, exist_ok=True)
-                temporary_path(self.rrd).touch()
-                temporary_path(self.rrd).unlink()
-            except OSError as e:
-                raise UserError(f"--rrd {self.rrd}: the recording cannot be written there ({e})") from None
         ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
         if ctx is None:
             self._stop = threading.Event()
-            self._local = _Drawer(inp, cam_numbers, self.rrd, spawn, track, image_rate_hz, self._stop)
+            self._local = _Drawer(self._stop)
             self._proc = None
             return
         self._local = None
         self._stop = ctx.Event()
         self._commands, self._replies = ctx.Queue(), ctx.Queue()
-        drawer = _Drawer(inp, cam_numbers, self.rrd, spawn, track, image_rate_hz, self._stop)
-        self._proc = ctx.Process(target=_serve, args=(drawer, self._commands, self._replies),
+        self._proc = ctx.Process(target=_serve, args=(_Drawer(self._stop), self._commands, self._replies),
                                  name="horizon-nav-rerun", daemon=True)
         self._proc.start()
+
+    def setup(self, inp, cam_numbers, rrd: Path | None, *, spawn: bool = False, track=None,
+              image_rate_hz: float | None = None) -> None:
+        """The recording's inputs: ``rrd`` the .rrd path (None: viewer only, ``spawn``), ``track``
+        GPS positions to aim the 3D view, ``image_rate_hz`` the images' thinning
+        (:func:`.rerun_view.shown_frames`). A path that cannot be written is a UserError here."""
+        rrd = None if rrd is None else Path(rrd)
+        if rrd is not None:
+            from scenarios.errors import UserError
+            from scenarios.replay.rerun_view import temporary_path
+            try:
+                rrd.parent.mkdir(parents=True, exist_ok=True)
+                temporary_path(rrd).touch()
+                temporary_path(rrd).unlink()
+            except OSError as e:
+                raise UserError(f"--rrd {rrd}: the recording cannot be written there ({e})") from None
+        self.rrd = rrd
+        self._send("setup", inp if self._local is not None else drawn_inputs(inp), cam_numbers, self.rrd, spawn,
+                   track, image_rate_hz)
 
     def _send(self, name: str, *args):
         if self._done:
@@ -247,7 +269,10 @@ class RecordingProcess:
         self._end()
         if self.rrd is not None:      # killed before it could delete its file
             from scenarios.replay.rerun_view import temporary_path
-            temporary_path(self.rrd).unlink(missing_ok=True)
+            try:
+                temporary_path(self.rrd).unlink(missing_ok=True)
+            except OSError:
+                pass
 
     def _ended_without_reply(self):
         code = self._proc.exitcode
