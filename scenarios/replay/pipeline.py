@@ -23,10 +23,10 @@ Stages (timed; ``ReplayResult.timings``):
 6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
 7. **rerun**: the recording (:mod:`.rerun_view`), drawn in a process of its own
    (:mod:`.recording_process`) forked when the replay starts: it imports Rerun while the log is
-   read here, sends the camera images while this process initialises, draws the front end's overlays while the filter runs,
-   the 3D scene while the smoother runs and the time series while the solution is written. The
-   stage's time here is what this process waits for it (at the end, and the sending of the
-   overlays); its CPU time is the recording process's whole.
+   read here, sends the camera images while this process initialises, draws the front end's
+   overlays while the filter runs, the 3D scene while the smoother runs and the time series while
+   the solution is written. The stage's time here is what this process waits for it (at the end,
+   and the sending of the overlays); its CPU time is the recording process's whole.
 
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
 (``horizon-nav.status`` complete = false, reason names the stage). It holds what exists at that
@@ -354,8 +354,7 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
     res = sm = None
     warm = None      # the filter's warm-up thread
     rerun_parts: dict = {}
-    want_rrd = opt.rrd != "" or opt.spawn
-    rrd = None if not want_rrd or (opt.spawn and not opt.rrd) else Path(
+    rrd = None if rec is None or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     R_bc = [inp.cameras[k].R_bc for k in cam_numbers]
     track = gps.x_e if gps is not None and len(gps.t_ns) else None   # aims the recording's 3D view
@@ -555,6 +554,8 @@ def _warm_filter(imu, init, tuning, gps, vectors, R_bc, smoother: bool) -> None:
                       store_for_smoother=smoother)
         if smoother:
             rts_smooth(res)
+    except Exception:  # noqa: BLE001 - a warm-up only: the filter itself reports its errors
+        pass
     finally:
         for lg, w in zip(logs, was):
             lg.disabled = w

@@ -70,7 +70,7 @@ class _Drawer:
     def __init__(self, stop):
         self.stop = stop
         self.r = None
-        self.res = self.vectors = self.frames = None
+        self.res = self.vectors = None
         self.timings: dict = {}
 
     def setup(self, inp, cam_numbers, rrd, spawn, track, image_rate_hz):
@@ -88,7 +88,7 @@ class _Drawer:
 
     def solution(self, res, vectors, frames):
         from scenarios.replay import rerun_view as RV
-        self.res, self.vectors, self.frames = res, vectors, frames
+        self.res, self.vectors = res, vectors
         RV.solution(self.r, self.inp, res, vectors, self.cam_numbers, frames)
 
     def finish(self, smooth):
