@@ -346,6 +346,37 @@ def test_recording_image_rate(ilog, tmp_path):
         replay(ilog, _opt(output=str(tmp_path / "x.solution.mcap"), rrd_image_rate_hz=0.0))
 
 
+def _entity_times(rrd, suffix) -> dict:
+    """entity path -> sorted mission times of its rows, for the entities ending in ``suffix``."""
+    from rerun.chunk import RrdReader
+    out: dict = {}
+    for ch in RrdReader(str(rrd)).store().stream():
+        if ch.entity_path.endswith(suffix) and not ch.is_static:
+            out.setdefault(ch.entity_path, []).extend(ch.to_record_batch().column("mission_time").to_numpy().tolist())
+    return {k: sorted(v) for k, v in out.items()}
+
+
+def test_overlays_drawn_in_parts_match_the_shown_images(ilog, tmp_path, monkeypatch):
+    """The recording process draws the overlays in parts as the frames come (here every 3 frames,
+    with the images thinned to 0.5 per second): each camera's overlay rows are at exactly the times
+    of its shown images, the same rows as drawn in one part."""
+    from scenarios.replay import recording_process
+    from scenarios.replay.pipeline import replay
+    got = {}
+    for batch in (3, 10_000):
+        monkeypatch.setattr(recording_process, "OVERLAY_BATCH", batch)
+        rrd = tmp_path / f"b{batch}.rrd"
+        replay(ilog, _opt(output=str(tmp_path / f"b{batch}.solution.mcap"), rrd=str(rrd), workers=2, smoother=False,
+                          init="truth", rrd_image_rate_hz=0.5))
+        images = _entity_times(rrd, "/image")
+        inliers = _entity_times(rrd, "/earth/inliers")
+        assert images and inliers
+        for path, t in inliers.items():
+            assert t == images[path.removesuffix("/earth/inliers")], path
+        got[batch] = (images, inliers)
+    assert got[3] == got[10_000]
+
+
 def test_chunks_partition_the_jobs_in_order():
     """The vision tasks cover every job once, in order, none larger than the chunk size, and the
     tail of 2 x workers x size frames is split into quarter-size tasks."""

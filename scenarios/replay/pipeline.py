@@ -375,8 +375,11 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
             warm = threading.Thread(target=_warm_filter, args=(imu, init, tuning, gps, pre, R_bc, opt.smoother),
                                     name="warm-filter", daemon=True)
             with prog.timed("vision", block=False):  # the frames are its steps
+                # the overlays go to the recording process as the frames come (sent and received
+                # while this process waits), drawn after the vision
                 frames, vectors = _run_images(plan, opt, frames_out=frames, progress=prog.update,
-                                              on_pool_start=warm.start)
+                                              on_pool_start=warm.start,
+                                              on_result=rec.add_overlays if rec is not None else None)
                 if init_method == "triad" and vectors is not None:
                     try:   # TRIAD again on the vectors measured with the attitude prior
                         init, tri_init = _triad(imu, gps, vectors, R_bc)
@@ -393,7 +396,7 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
         if rec is not None:
             with prog.timed("rerun", block=False):
                 rec.check()
-                rec.overlays(frames)      # drawn while the filter runs here
+                rec.overlays()      # drawn while the filter runs here
         if warm is not None and warm.ident is not None:
             warm.join()     # its warm-up run of the filter has ended
         with prog.timed("filter"):
@@ -627,13 +630,20 @@ def _payload_masks(inp, cam_numbers, files: dict) -> dict:
     return out
 
 
-def _run_plan(plan: _ImagePlan, jobs, opt, frames_out=None, progress=None, on_pool_start=None) -> list:
+def _run_plan(plan: _ImagePlan, jobs, opt, frames_out=None, progress=None, on_pool_start=None,
+              on_result=None) -> list:
     """The vision on ``jobs``; returns the vector rows ``(t_ns, camera index, target, e_c, P_c)``
-    of the replayed targets (for :func:`_vd`)."""
+    of the replayed targets (for :func:`_vd`). Each finished chunk of frames goes to
+    ``frames_out.extend`` and ``on_result``."""
     from scenarios.replay.vision_worker import run_vision
+
+    def got(res):
+        if frames_out is not None:
+            frames_out.extend(res)
+        if on_result is not None:
+            on_result(res)
     out = run_vision(jobs, plan.cams, plan.config, workers=opt.workers, progress=progress, masks=plan.masks,
-                     on_result=frames_out.extend if frames_out is not None else None,
-                     images=plan.images, on_pool_start=on_pool_start)
+                     on_result=got, images=plan.images, on_pool_start=on_pool_start)
     return [(r.t_ns, plan.cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
             for f in out for r in f.records if r.target in opt.targets]
 
@@ -685,11 +695,11 @@ def _attach_priors(plan: _ImagePlan, imu, init, inp, cam_numbers) -> None:
         plan.jobs[n] = dataclasses.replace(j, R_ec=R_ec, sun_c=R_ec.T @ s_e[n])
 
 
-def _run_images(plan: _ImagePlan, opt, frames_out, progress=None, on_pool_start=None):
+def _run_images(plan: _ImagePlan, opt, frames_out, progress=None, on_pool_start=None, on_result=None):
     """Every planned frame through the vision (with the priors attached to its job)."""
     if not plan.jobs:
         return frames_out, None
-    return frames_out, _vd(_run_plan(plan, plan.jobs, opt, frames_out, progress, on_pool_start))
+    return frames_out, _vd(_run_plan(plan, plan.jobs, opt, frames_out, progress, on_pool_start, on_result))
 
 
 def _targets_only(cfg, targets):

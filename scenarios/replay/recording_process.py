@@ -15,7 +15,9 @@ does not wait for the recording process to be free) and does not import Rerun at
    image streams go as their file's path and index, the file is mapped again there);
 2. :meth:`RecordingProcess.begin` with the frames to show (anything with ``k`` and ``t_ns``): open
    the recording (:func:`.rerun_view.begin`) and send the camera images;
-3. :meth:`RecordingProcess.overlays` with the front end's results (:func:`.rerun_view.overlays`);
+3. :meth:`RecordingProcess.add_overlays` with the front end's results as the frames come (drawn
+   by :func:`.rerun_view.overlays` every :data:`OVERLAY_BATCH` frames), then
+   :meth:`RecordingProcess.overlays` for the rest;
 4. :meth:`RecordingProcess.solution` with the filter's result (:func:`.rerun_view.solution`: 3D
    scene), the covariances the drawing does not use left out;
 5. :meth:`RecordingProcess.finish` with the smoother's result (:func:`.rerun_view.finish`: time
@@ -43,6 +45,9 @@ from types import SimpleNamespace
 
 #: seconds to wait for the process to end after an abandon before it is killed
 ABANDON_TIMEOUT_S = 10.0
+#: overlays drawn as soon as this many frames' have come (Rerun encodes and writes them while the
+#: vision runs instead of after it); the rest when the vision ends
+OVERLAY_BATCH = 256
 
 
 class RecordingError(RuntimeError):
@@ -71,6 +76,8 @@ class _Drawer:
         self.stop = stop
         self.r = None
         self.res = self.vectors = None
+        self.pending: list = []      # overlays received, drawn by overlays()
+        self.shown: set = set()
         self.timings: dict = {}
 
     def setup(self, inp, cam_numbers, rrd, spawn, track, image_rate_hz):
@@ -79,12 +86,21 @@ class _Drawer:
 
     def begin(self, frames):
         from scenarios.replay import rerun_view as RV
+        # the frames whose images (and so overlays) are shown, thinned over all frames at once
+        self.shown = {(f.k, f.t_ns) for f in RV.shown_frames(frames, self.cam_numbers, self.image_rate_hz)}
         self.r = RV.begin(self.inp, frames, self.cam_numbers, self.rrd, spawn=self.spawn, track=self.track,
                           timings=self.timings, image_rate_hz=self.image_rate_hz, stop=self.stop)
 
-    def overlays(self, frames):
+    def add_overlays(self, frames):
+        self.pending.extend(frames)
+        if len(self.pending) >= OVERLAY_BATCH:
+            self.overlays()
+
+    def overlays(self):
         from scenarios.replay import rerun_view as RV
-        RV.overlays(self.r, self.inp, frames, self.cam_numbers)
+        if self.pending:
+            RV.overlays(self.r, self.inp, self.pending, self.cam_numbers, shown=self.shown)
+        self.pending = []
 
     def solution(self, res, vectors, frames):
         from scenarios.replay import rerun_view as RV
@@ -195,8 +211,13 @@ class RecordingProcess:
     def begin(self, frames) -> None:
         self._send("begin", _frames_kt(frames))
 
-    def overlays(self, frames) -> None:
-        self._send("overlays", _frames_overlay(frames))
+    def add_overlays(self, frames) -> None:
+        """The front end's results of some frames (their overlays), as they come."""
+        self._send("add_overlays", _frames_overlay(frames))
+
+    def overlays(self) -> None:
+        """Draw the overlays received (:func:`.rerun_view.overlays`)."""
+        self._send("overlays")
 
     def solution(self, res, vectors, frames) -> None:
         self._send("solution", drawn_result(res), vectors, _frames_kt(frames))

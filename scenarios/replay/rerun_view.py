@@ -144,14 +144,18 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     return r
 
 
-def overlays(r: Recording, inp, frames, cam_numbers) -> None:
+def overlays(r: Recording, inp, frames, cam_numbers, shown: set | None = None) -> None:
     """The front end's overlays (``frames``: vision_worker.FrameOutput) on the images
-    :func:`begin` sent."""
+    :func:`begin` sent: those of the frames whose images are shown (:func:`shown_frames` of
+    ``frames``, or the ``(k, t_ns)`` in ``shown`` when ``frames`` is one part of them). Called for
+    consecutive parts, the parts' rows follow each other."""
     import time
     import rerun as rr
     t = time.perf_counter()
-    _overlays(r.rec, rr, inp, shown_frames(frames, cam_numbers, r.image_rate_hz), cam_numbers)
-    r.timings["overlays"] = time.perf_counter() - t
+    fr = (shown_frames(frames, cam_numbers, r.image_rate_hz) if shown is None
+          else [f for f in frames if (f.k, f.t_ns) in shown])
+    _overlays(r.rec, rr, inp, fr, cam_numbers)
+    r.timings["overlays"] = r.timings.get("overlays", 0.0) + time.perf_counter() - t
 
 
 def solution(r: Recording, inp, res, vectors, cam_numbers, frames) -> None:
