@@ -60,8 +60,8 @@ def test_unwritable_recording_is_a_clear_error(vlog, tmp_path):
 
 
 def test_recording_failure_is_raised_and_the_solution_kept(vlog, tmp_path, monkeypatch):
-    """The recording process fails while drawing the time series (after the solution log is
-    being written): the replay raises its error with the process's traceback, the solution log is
+    """The recording process fails while drawing the smoother's time series (while the solution
+    log is being written): the replay raises its error with the process's traceback, the solution log is
     complete, and neither the .rrd nor its temporary file remains."""
     import pytest
     from scenarios.log_reader import read_log
@@ -71,12 +71,34 @@ def test_recording_failure_is_raised_and_the_solution_kept(vlog, tmp_path, monke
 
     def broken(*a, **k):
         raise ZeroDivisionError("drawing failed")
-    monkeypatch.setattr(rerun_view, "_timeseries", broken)     # inherited by the forked process
+    monkeypatch.setattr(rerun_view, "_smoothed_timeseries", broken)     # inherited by the forked process
     out = tmp_path / "f.solution.mcap"
-    with pytest.raises(RecordingError, match=r"ZeroDivisionError: drawing failed(.|\n)*_timeseries"):
+    with pytest.raises(RecordingError, match=r"ZeroDivisionError: drawing failed(.|\n)*_smoothed_timeseries"):
         replay(vlog, _opt(output=str(out), rrd=str(tmp_path / "f.rrd")))
     assert read_log(out).complete is True
     assert not [p for p in tmp_path.iterdir() if "rrd" in p.name]
+
+
+def test_drawn_result_keeps_the_accepted_innovations(vlog, tmp_path):
+    """What the recording process receives of the filter's result: every accepted innovation with
+    its time, kind, camera, innovation and covariance, bit for bit, after a pickle round trip;
+    none of the rejected ones; no full covariances."""
+    import pickle
+
+    import numpy as np
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.recording_process import drawn_result
+    rr = replay(vlog, _opt(output=str(tmp_path / "d.solution.mcap")))
+    got = pickle.loads(pickle.dumps(drawn_result(rr.nav)))
+    want = [i for i in rr.nav.innovations if i.accepted]
+    rows = list(got.innovations)
+    assert len(rows) == len(want) > 0 and len(want) < len(rr.nav.innovations) + 1
+    assert {i.kind for i in want} >= {"gps_pos", "gps_vel", "hor"}
+    for a, b in zip(want, rows):
+        assert (a.t_ns, a.kind, a.camera, True) == (b.t_ns, b.kind, b.camera, b.accepted)
+        np.testing.assert_array_equal(np.ravel(a.s), b.s)
+        np.testing.assert_array_equal(np.asarray(a.S), b.S)
+    assert got.P_full.size == 0 and got.store is None
 
 
 def test_unaided_angle_residual_matches_free_inertial_prediction(vlog, tmp_path):

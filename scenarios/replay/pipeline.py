@@ -24,8 +24,8 @@ Stages (timed; ``ReplayResult.timings``):
 7. **rerun**: the recording (:mod:`.rerun_view`), drawn in a process of its own
    (:mod:`.recording_process`) forked when the replay starts: it imports Rerun while the log is
    read here, sends the camera images while this process initialises, draws the front end's
-   overlays while the filter runs, the 3D scene while the smoother runs and the time series while
-   the solution is written. The stage's time here is what this process waits for it (at the end,
+   overlays as the frames come and while the filter runs, the 3D scene and the filter's time
+   series while the smoother runs and the smoother's while the solution is written. The stage's time here is what this process waits for it (at the end,
    and the sending of the overlays); its CPU time is the recording process's whole.
 
 Interruption (SIGINT / Ctrl-C): the solution log is finalised as a valid partial log
@@ -407,14 +407,14 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
                 raise UserError(f"filter: {e}") from None
         if rec is not None:
             rec.check()
-            rec.solution(res, vectors, frames)     # the 3D scene, drawn while the smoother runs
+            rec.solution(res, vectors, frames)     # the 3D scene and series, drawn while the smoother runs
         if opt.smoother:
             with prog.timed("smoother"):
                 from nav.smoother import rts_smooth
                 sm = rts_smooth(res)
                 res.store = None
         if rec is not None:
-            rec.finish(sm)         # the time series drawn and the file written while this one is
+            rec.finish(sm)         # the smoother's series drawn and the file written while this one is
         with prog.timed("write"):
             SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
             w.close()

@@ -159,25 +159,27 @@ def overlays(r: Recording, inp, frames, cam_numbers, shown: set | None = None) -
 
 
 def solution(r: Recording, inp, res, vectors, cam_numbers, frames) -> None:
-    """The forward solution's static parts (ellipsoid, trajectory, camera models) and the 3D scene
-    (``frames``: anything with ``k`` and ``t_ns``)."""
+    """The forward solution's static parts (ellipsoid, trajectory, camera models), the 3D scene
+    (``frames``: anything with ``k`` and ``t_ns``) and the time series."""
     import time
     import rerun as rr
     for name, fn, args in (("static", _static, (r.rec, rr, inp, res)),
-                           ("scene", _scene, (r.rec, rr, inp, res, vectors, cam_numbers, frames))):
+                           ("scene", _scene, (r.rec, rr, inp, res, vectors, cam_numbers, frames)),
+                           ("series", _timeseries, (r.rec, rr, inp, res, vectors, cam_numbers))):
         t = time.perf_counter()
         fn(*args)
         r.timings[name] = r.timings.get(name, 0.0) + time.perf_counter() - t
 
 
-def finish(r: Recording, inp, res, smooth, vectors, cam_numbers) -> Path | None:
-    """The time series (after :func:`solution`), then wait for Rerun to write everything and move
-    the file to its name; returns the path."""
+def finish(r: Recording, inp, res, smooth) -> Path | None:
+    """The smoother's time series (after :func:`solution`; ``smooth`` None: none), then wait for
+    Rerun to write everything and move the file to its name; returns the path."""
     import time
     import rerun as rr
     tm = r.timings
     t = time.perf_counter()
-    _timeseries(r.rec, rr, inp, res, smooth, vectors, cam_numbers)
+    if smooth is not None:
+        _smoothed_timeseries(r.rec, rr, inp, res, smooth)
     tm["series"] = tm.get("series", 0.0) + time.perf_counter() - t
     t = time.perf_counter()
     r.rec.flush()
@@ -472,7 +474,8 @@ def _predicted_c(inp, q_eb, x_e, t_ns, target, R_bc):
     return np.einsum("ji,nkj,nk->ni", R_bc, R_eb, d)
 
 
-def _timeseries(rec, rr, inp, res, smooth, vectors, cam_numbers):
+def _timeseries(rec, rr, inp, res, vectors, cam_numbers):
+    """The forward solution's series (the smoother's: :func:`_smoothed_timeseries`)."""
     # innovations with +-3 sigma (fig. 41) and angle residuals (fig. 42): the measurements the filter
     # used (rejected ones are in the solution log's /nav/measurements with their reason)
     groups = {}
@@ -527,10 +530,6 @@ def _timeseries(rec, rr, inp, res, smooth, vectors, cam_numbers):
     sig = np.degrees(3 * np.sqrt(res.P_diag[:, res.layout["psi"]]))
     for a in range(3):
         _series(rec, rr, inp, f"attitude_3sigma/forward/{AXES[a]}", res.cov_t_ns, sig[:, a])
-    if smooth is not None:
-        ss = np.degrees(3 * np.sqrt(smooth.P[:, res.layout["psi"]]))
-        for a in range(3):
-            _series(rec, rr, inp, f"attitude_3sigma/smoothed/{AXES[a]}", smooth.t_ns, ss[:, a])
     ci = res.cov_idx
     if len(res.unaided_q_eb):
         d = np.degrees(attitude_error(res.unaided_q_eb[ci], res.q_eb[ci]))  # aided - unaided, rotation in e
@@ -546,23 +545,34 @@ def _timeseries(rec, rr, inp, res, smooth, vectors, cam_numbers):
                                             @ np.swapaxes(quat_to_matrix(res.unaided_q_eb[j]), -1, -2)))
             for a in range(3):
                 _series(rec, rr, inp, f"triad_minus_unaided/{AXES[a]}", res.triad_t_ns, d[:, a])
-    tr = inp.truth
-    if tr is not None:
-        sols = [("forward", res.cov_t_ns, res.x_e[ci], res.v_e[ci], res.q_eb[ci])]
-        if smooth is not None:
-            sols.append(("smoothed", smooth.t_ns, smooth.x_e, smooth.v_e, smooth.q_eb))
-        for name, t, x, v, q in sols:
-            j = np.searchsorted(tr.t_ns, t)
-            ok = j < tr.t_ns.size
-            ok[ok] = tr.t_ns[j[ok]] == t[ok]
-            if not ok.any():
-                continue
-            jj = j[ok]
-            psi = np.degrees(attitude_error(q[ok], tr.q_eb[jj]))
-            for a in range(3):
-                _series(rec, rr, inp, f"error/attitude/{name}/{AXES[a]}", t[ok], psi[:, a])
-            _series(rec, rr, inp, f"error/position/{name}", t[ok], np.linalg.norm(x[ok] - tr.x_e[jj], axis=1))
-            _series(rec, rr, inp, f"error/velocity/{name}", t[ok], np.linalg.norm(v[ok] - tr.v_e[jj], axis=1))
+    if inp.truth is not None:
+        _errors(rec, rr, inp, "forward", res.cov_t_ns, res.x_e[ci], res.v_e[ci], res.q_eb[ci])
         # attitude error 3-sigma envelope for comparison
         for a in range(3):
             _series(rec, rr, inp, f"error/attitude/forward/{AXES[a]}_3sigma", res.cov_t_ns, sig[:, a])
+
+
+def _smoothed_timeseries(rec, rr, inp, res, smooth):
+    """The smoother's series: attitude 3 sigma (fig. 40) and errors against the truth."""
+    ss = np.degrees(3 * np.sqrt(smooth.P[:, res.layout["psi"]]))
+    for a in range(3):
+        _series(rec, rr, inp, f"attitude_3sigma/smoothed/{AXES[a]}", smooth.t_ns, ss[:, a])
+    if inp.truth is not None:
+        _errors(rec, rr, inp, "smoothed", smooth.t_ns, smooth.x_e, smooth.v_e, smooth.q_eb)
+
+
+def _errors(rec, rr, inp, name, t, x, v, q):
+    """Attitude, position and velocity errors of a solution against the truth, at the solution's
+    stamps that the truth has."""
+    tr = inp.truth
+    j = np.searchsorted(tr.t_ns, t)
+    ok = j < tr.t_ns.size
+    ok[ok] = tr.t_ns[j[ok]] == t[ok]
+    if not ok.any():
+        return
+    jj = j[ok]
+    psi = np.degrees(attitude_error(q[ok], tr.q_eb[jj]))
+    for a in range(3):
+        _series(rec, rr, inp, f"error/attitude/{name}/{AXES[a]}", t[ok], psi[:, a])
+    _series(rec, rr, inp, f"error/position/{name}", t[ok], np.linalg.norm(x[ok] - tr.x_e[jj], axis=1))
+    _series(rec, rr, inp, f"error/velocity/{name}", t[ok], np.linalg.norm(v[ok] - tr.v_e[jj], axis=1))
