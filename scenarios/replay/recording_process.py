@@ -104,7 +104,6 @@ class _Drawer:
         self.r = None
         self.res = None
         self.pending: list = []      # overlays received, drawn by overlays()
-        self.shown: set = set()
         self.timings: dict = {}
 
     def setup(self, inp, cam_numbers, rrd, spawn, track, image_rate_hz):
@@ -113,8 +112,6 @@ class _Drawer:
 
     def begin(self, frames):
         from scenarios.replay import rerun_view as RV
-        # the frames whose images (and so overlays) are shown, thinned over all frames at once
-        self.shown = {(f.k, f.t_ns) for f in RV.shown_frames(frames, self.cam_numbers, self.image_rate_hz)}
         self.r = RV.begin(self.inp, frames, self.cam_numbers, self.rrd, spawn=self.spawn, track=self.track,
                           timings=self.timings, image_rate_hz=self.image_rate_hz, stop=self.stop)
 
@@ -126,7 +123,7 @@ class _Drawer:
     def overlays(self):
         from scenarios.replay import rerun_view as RV
         if self.pending:
-            RV.overlays(self.r, self.inp, self.pending, self.cam_numbers, shown=self.shown)
+            RV.overlays(self.r, self.inp, self.pending, self.cam_numbers)
         self.pending = []
 
     def solution(self, res, vectors, frames):

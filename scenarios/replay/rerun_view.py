@@ -28,7 +28,7 @@ Entities (timelines ``utc`` = absolute time and ``mission_time`` = T+ seconds):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -99,7 +99,7 @@ class Recording:
     path: Path | None   #: final .rrd (None: viewer only)
     tmp: Path | None    #: the file being written, renamed to ``path`` by :func:`finish`
     timings: dict
-    image_rate_hz: float | None = None   #: the images' thinning (:func:`shown_frames`)
+    shown: set = field(default_factory=set)   #: (k, t_ns) of the frames whose images were sent
 
 
 class RecordingStopped(Exception):
@@ -132,11 +132,12 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
         rec.save(str(tmp), default_blueprint=blueprint(cam_numbers, track))
     if spawn:
         rec.spawn(default_blueprint=blueprint(cam_numbers, track))
-    r = Recording(rec, None if path is None else Path(path), tmp, tm, image_rate_hz)
+    shown = shown_frames(frames, cam_numbers, image_rate_hz)
+    r = Recording(rec, None if path is None else Path(path), tmp, tm, {(f.k, f.t_ns) for f in shown})
     tm["static"] = time.perf_counter() - t
     t = time.perf_counter()
     try:
-        _images(rec, rr, inp, shown_frames(frames, cam_numbers, image_rate_hz), cam_numbers, stop)
+        _images(rec, rr, inp, shown, cam_numbers, stop)
     except BaseException:
         abandon(r)
         raise
@@ -144,17 +145,14 @@ def begin(inp, frames, cam_numbers, path: Path | None, *, spawn: bool = False, t
     return r
 
 
-def overlays(r: Recording, inp, frames, cam_numbers, shown: set | None = None) -> None:
+def overlays(r: Recording, inp, frames, cam_numbers) -> None:
     """The front end's overlays (``frames``: vision_worker.FrameOutput) on the images
-    :func:`begin` sent: those of the frames whose images are shown (:func:`shown_frames` of
-    ``frames``, or the ``(k, t_ns)`` in ``shown`` when ``frames`` is one part of them). Called for
-    consecutive parts, the parts' rows follow each other."""
+    :func:`begin` sent: those of the frames among them whose images were sent (``r.shown``). Called
+    for consecutive parts of the frames, the parts' rows follow each other."""
     import time
     import rerun as rr
     t = time.perf_counter()
-    fr = (shown_frames(frames, cam_numbers, r.image_rate_hz) if shown is None
-          else [f for f in frames if (f.k, f.t_ns) in shown])
-    _overlays(r.rec, rr, inp, fr, cam_numbers)
+    _overlays(r.rec, rr, inp, [f for f in frames if (f.k, f.t_ns) in r.shown], cam_numbers)
     r.timings["overlays"] = r.timings.get("overlays", 0.0) + time.perf_counter() - t
 
 
