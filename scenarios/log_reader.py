@@ -126,6 +126,16 @@ class ImageStream:
         # raises for a damaged message
         return data if data is not None else self._decode(i)["data"][0].tobytes()
 
+    def view(self, i: int) -> np.ndarray:
+        """The JPEG bytes of image ``i`` as a read-only uint8 array viewing the log's decompressed
+        chunk (no copy; it keeps that chunk alive): for copying many images into one buffer."""
+        seg, off, ln = (int(x) for x in self._loc[i])
+        buf = self._reader.segment(seg)
+        span = _compressed_image_span(buf, off, ln)
+        if span is None:
+            return np.frombuffer(self[i], np.uint8)
+        return np.frombuffer(buf, np.uint8, count=span[1], offset=span[0])
+
     def format(self, i: int) -> str:
         return str(self._decode(i)["format"][0])
 
@@ -217,10 +227,17 @@ class FlightLog:
 # --------------------------------------------------------------------------------------------
 def _compressed_image_data(buf, off: int, ln: int) -> bytes | None:
     """The ``data`` bytes of one little-endian CDR ``sensor_msgs/CompressedImage`` message at
-    ``buf[off:off + ln]``, or None when it does not parse as one. The same bytes as the general
-    decoder (:meth:`ImageStream._decode`, tests/test_log_io.py), read directly: that decoder works
-    on message matrices and costs ~0.17 ms for a single message, once per frame in the vision
-    workers and again for the recording.
+    ``buf[off:off + ln]``, or None when it does not parse as one (:func:`_compressed_image_span`)."""
+    span = _compressed_image_span(buf, off, ln)
+    return None if span is None else bytes(buf[span[0]:span[0] + span[1]])
+
+
+def _compressed_image_span(buf, off: int, ln: int) -> tuple[int, int] | None:
+    """``(start, length)`` in ``buf`` of the ``data`` bytes of one little-endian CDR
+    ``sensor_msgs/CompressedImage`` message at ``buf[off:off + ln]``, or None when it does not
+    parse as one. The same bytes as the general decoder (:meth:`ImageStream._decode`,
+    tests/test_log_io.py), read directly: that decoder works on message matrices and costs ~0.17 ms
+    for a single message, once per frame in the vision workers and again for the recording.
 
     Layout after the 4-byte encapsulation header (0, 1, options), each 4-byte length aligned to 4
     from there: ``stamp`` (int32 sec, uint32 nanosec), ``frame_id`` (length incl. NUL, bytes),
@@ -241,7 +258,7 @@ def _compressed_image_data(buf, off: int, ln: int) -> bytes | None:
     start = base + p + 4
     if start + n > end:
         return None
-    return bytes(buf[start:start + n])
+    return start, n
 
 
 class _Body:

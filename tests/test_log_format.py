@@ -327,6 +327,9 @@ def test_image_stream_pickles_as_path_and_index(full_log, tmp_path):
     assert len(blob) < 4096                       # the index, not the images
     again = pickle.loads(blob)
     assert [again[i] for i in range(len(again))] == d["jpegs"]
+    # the views (no copy) hold the same bytes, read-only
+    views = [again.view(i) for i in range(len(again))]
+    assert [v.tobytes() for v in views] == d["jpegs"] and not any(v.flags.writeable for v in views)
     _write_all(copy, {**d, "jpegs": [b"x" + j for j in d["jpegs"]]})
     with pytest.raises(LogFormatError, match="copy.mcap: the log changed"):
         pickle.loads(blob)

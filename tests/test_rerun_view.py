@@ -119,3 +119,31 @@ def test_unaided_angle_residual_matches_free_inertial_prediction(vlog, tmp_path)
     want = R_bc.T @ quat_to_matrix(res.unaided_q_eb[j]).T @ d_e
     got = _predicted_c(rr.inputs, res.unaided_q_eb[j:j + 1], res.x_e[j:j + 1], res.t_ns[j:j + 1], "hor", R_bc)[0]
     np.testing.assert_allclose(got, want, atol=1e-12)
+
+
+def test_recording_process_preloads_what_drawing_imports(tmp_path):
+    """The recording process imports its modules (recording_process.PRELOADED) while the replay
+    reads the log: after them, opening a recording with the blueprint and drawing points, strips
+    and scalars imports no further package (pyarrow's lazy pandas import on the first list
+    conversion cost 0.25-0.35 s inside rerun_view.begin, while the vision workers ran). In a fresh
+    interpreter, so that nothing imported earlier hides an import."""
+    code = f"""
+import importlib, sys
+import numpy as np
+from scenarios.replay.recording_process import PRELOADED
+from scenarios.replay import rerun_view
+for name in PRELOADED:
+    importlib.import_module(name)
+import rerun as rr
+before = {{m.split(".")[0] for m in sys.modules}}
+rec = rr.RecordingStream("t", recording_id="t")
+rec.save({str(tmp_path / "p.rrd")!r}, default_blueprint=rerun_view.blueprint([1, 2], np.array([[7e6, 0, 0], [7.1e6, 1e4, 0]])))
+rec.log("a", rr.Points2D([[1.0, 2.0]], colors=[[1, 2, 3]], radii=[1.0]))
+rec.log("b", rr.LineStrips2D([[[0.0, 0.0], [1.0, 1.0]]], colors=[[1, 2, 3]]))
+rec.send_columns("c", indexes=[rr.TimeColumn("t", duration=[1.0, 2.0])], columns=rr.Scalars.columns(scalars=[1.0, 2.0]))
+rec.flush()
+print(sorted({{m.split(".")[0] for m in sys.modules}} - before))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout

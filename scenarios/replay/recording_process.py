@@ -52,6 +52,13 @@ ABANDON_TIMEOUT_S = 10.0
 OVERLAY_BATCH = 256
 
 
+#: imported by the recording process as soon as it starts, while the replay's process reads the log
+#: (one core idle). pandas: pyarrow imports it on the first conversion of a Python list (Rerun's
+#: blueprint does one), 0.25-0.35 s of CPU that otherwise fell in :func:`.rerun_view.begin`,
+#: while the vision workers run.
+PRELOADED = ("rerun", "pandas")
+
+
 class RecordingError(RuntimeError):
     """The recording process failed (its traceback is in the message)."""
 
@@ -148,7 +155,8 @@ def _serve(drawer: _Drawer, commands, replies) -> None:
     abandons the recording and is sent back."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        importlib.import_module("rerun")    # while the replay's process reads the log
+        for name in PRELOADED:              # while the replay's process reads the log
+            importlib.import_module(name)
         while True:
             name, args = commands.get()
             if name == "abandon":

@@ -331,18 +331,12 @@ def image_batches(inp, frames, cam_numbers, max_bytes: int | None = None) -> lis
     return out
 
 
-def read_blobs(inp, frames, cam_numbers) -> dict:
-    """camera -> the JPEG bytes of its ``frames`` (time order) as one Arrow blob array, ready for
-    ``EncodedImage.columns``; cameras without frames are left out."""
-    return {k: _blob_batch(v) for k, v in read_images(inp, frames, cam_numbers).items() if v}
-
-
 def _images(rec, rr, inp, frames, cam_numbers, stop=None):
     """Each frame as its JPEG bytes (EncodedImage): the frames in :func:`image_batches`, read
     batch by batch and sent :data:`IMAGES_PER_SEND` at a time, waiting for Rerun to write each
     batch before the next is read when there are several; :class:`RecordingStopped` once ``stop``
-    is set."""
-    from rerun.encodings import BlobBatch
+    is set. Each send's JPEG bytes are copied once, from the log's decompressed chunks into the
+    send's Arrow buffer (:func:`_blob_batch`)."""
     batches = image_batches(inp, frames, cam_numbers)
     for k in cam_numbers:
         if any(f.k == k for f in frames):
@@ -350,16 +344,14 @@ def _images(rec, rr, inp, frames, cam_numbers, stop=None):
     for n, batch in enumerate(batches):
         if n:
             rec.flush()    # bounded memory: the previous batch is written before this one is read
-        got = read_blobs(inp, batch, cam_numbers)
+        got = read_images(inp, batch, cam_numbers)
         for k in cam_numbers:
             t = np.array(sorted(f.t_ns for f in batch if f.k == k), np.int64)
-            arr = got[k].as_arrow_array() if t.size else None
             for s in range(0, t.size, IMAGES_PER_SEND):
                 if stop is not None and stop.is_set():
                     raise RecordingStopped
                 rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t[s:s + IMAGES_PER_SEND]),
-                                 columns=rr.EncodedImage.columns(
-                                     blob=BlobBatch(arr.slice(s, min(IMAGES_PER_SEND, t.size - s)))))
+                                 columns=rr.EncodedImage.columns(blob=_blob_batch(got[k][s:s + IMAGES_PER_SEND])))
         del got
 
 
@@ -418,7 +410,8 @@ def _image_index(stream, t_ns) -> np.ndarray:
 
 
 def read_images(inp, frames, cam_numbers) -> dict:
-    """camera -> the JPEG bytes of its frames (time order, the image at or after each frame time).
+    """camera -> the JPEG bytes of its frames (time order, the image at or after each frame time),
+    each a uint8 array viewing the log's decompressed chunk (:meth:`ImageStream.view`: not copied).
 
     The images of all cameras are read in log time order, the order of the log's chunks: the
     reader keeps one decompressed chunk, so each chunk is decompressed once (camera by camera,
@@ -433,18 +426,20 @@ def read_images(inp, frames, cam_numbers) -> dict:
         want += [(int(st.t_ns[i]), k, p, int(i)) for p, i in enumerate(_image_index(st, t))]
     out = {k: [None] * sum(1 for f in frames if f.k == k) for k in cam_numbers}
     for _, k, p, i in sorted(want):
-        out[k][p] = inp.cameras[k].images[i]
+        out[k][p] = inp.cameras[k].images.view(i)
     return out
 
 
 def _blob_batch(blobs):
-    """The JPEG byte strings as one Arrow list array (one concatenation), the same array
-    ``EncodedImage.columns(blob=list)`` builds blob by blob, ~9x faster for a flight's frames."""
+    """The JPEG bytes (uint8 arrays or bytes) as one Arrow list array, copied once into one buffer:
+    the array ``EncodedImage.columns(blob=list)`` builds blob by blob, ~9x faster for a flight's
+    frames."""
     import pyarrow as pa
     from rerun.encodings import BlobBatch
-    off = np.zeros(len(blobs) + 1, np.int32)
-    off[1:] = np.cumsum([len(b) for b in blobs])
-    inner = pa.array(np.frombuffer(b"".join(blobs), np.uint8))
+    parts = [np.frombuffer(b, np.uint8) if isinstance(b, (bytes, bytearray)) else b for b in blobs]
+    off = np.zeros(len(parts) + 1, np.int32)
+    off[1:] = np.cumsum([p.size for p in parts])
+    inner = pa.array(np.concatenate(parts) if parts else np.zeros(0, np.uint8))
     return BlobBatch(pa.ListArray.from_arrays(pa.array(off), inner, type=BlobBatch._ARROW_DATATYPE))
 
 
