@@ -120,11 +120,7 @@ class ImageStream:
         return vals
 
     def __getitem__(self, i: int) -> bytes:
-        seg, off, ln = (int(x) for x in self._loc[i])
-        data = _compressed_image_data(self._reader.segment(seg), off, ln)
-        # anything the direct parse does not accept goes through the general decoder, which
-        # raises for a damaged message
-        return data if data is not None else self._decode(i)["data"][0].tobytes()
+        return self.view(i).tobytes()
 
     def view(self, i: int) -> np.ndarray:
         """The JPEG bytes of image ``i`` as a read-only uint8 array viewing the log's decompressed
@@ -133,7 +129,9 @@ class ImageStream:
         buf = self._reader.segment(seg)
         span = _compressed_image_span(buf, off, ln)
         if span is None:
-            return np.frombuffer(self[i], np.uint8)
+            # anything the direct parse does not accept goes through the general decoder, which
+            # raises for a damaged message
+            return np.asarray(self._decode(i)["data"][0], np.uint8)
         return np.frombuffer(buf, np.uint8, count=span[1], offset=span[0])
 
     def format(self, i: int) -> str:
@@ -225,13 +223,6 @@ class FlightLog:
 # --------------------------------------------------------------------------------------------
 # Record parsing helpers
 # --------------------------------------------------------------------------------------------
-def _compressed_image_data(buf, off: int, ln: int) -> bytes | None:
-    """The ``data`` bytes of one little-endian CDR ``sensor_msgs/CompressedImage`` message at
-    ``buf[off:off + ln]``, or None when it does not parse as one (:func:`_compressed_image_span`)."""
-    span = _compressed_image_span(buf, off, ln)
-    return None if span is None else bytes(buf[span[0]:span[0] + span[1]])
-
-
 def _compressed_image_span(buf, off: int, ln: int) -> tuple[int, int] | None:
     """``(start, length)`` in ``buf`` of the ``data`` bytes of one little-endian CDR
     ``sensor_msgs/CompressedImage`` message at ``buf[off:off + ln]``, or None when it does not

@@ -288,12 +288,16 @@ def test_vectorised_codec_matches_mcap_ros2_bytes(short):
 
 
 def test_image_data_parsed_directly_as_mcap_ros2_writes_it():
-    """The direct parse of one CompressedImage (scenarios.log_reader._compressed_image_data) gives
+    """The direct parse of one CompressedImage (scenarios.log_reader._compressed_image_span) gives
     the data bytes of messages serialised by mcap_ros2 (frame_id and format of every length
     mod 4, so every alignment; empty data included); truncated or wrongly encapsulated messages
     give None (the general decoder then reports them)."""
     from mcap_ros2._dynamic import serialize_dynamic
-    from scenarios.log_reader import IMAGE_TYPE, _compressed_image_data
+    from scenarios.log_reader import IMAGE_TYPE, _compressed_image_span
+
+    def _compressed_image_data(buf, off, ln):
+        span = _compressed_image_span(buf, off, ln)
+        return None if span is None else buf[span[0]:span[0] + span[1]]
     short = "sensor_msgs/CompressedImage"
     assert IMAGE_TYPE == short
     enc = serialize_dynamic(short, lf.schema_text(short))[short]
@@ -857,3 +861,14 @@ def test_encode_groups_rows_are_the_payloads_after_a_head():
             assert list(rows[j, :3]) == [len(ref[i]) % 256, 7, 9]
     v2 = dict(v, velocity_e=np.ones((n, 3)), q_eb=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)))
     assert layout.encode(v2, n) == ref
+
+
+def test_image_not_parsed_directly_goes_through_the_general_decoder(full_log, monkeypatch):
+    """An image message the direct parse does not accept (here: every one) is read by the general
+    decoder: the same bytes, through ``stream[i]`` and ``stream.view(i)``."""
+    from scenarios import log_reader
+    path, d = full_log
+    st = log_reader.read_log(path).cameras[2].images
+    monkeypatch.setattr(log_reader, "_compressed_image_span", lambda buf, off, ln: None)
+    assert [st[i] for i in range(len(st))] == d["jpegs"]
+    assert [st.view(i).tobytes() for i in range(len(st))] == d["jpegs"]
