@@ -320,7 +320,7 @@ class _Reader:
 
     def decompress(self, i: int) -> bytes:
         off, ln, comp, size = self.chunks[i]
-        raw = self.data[off:off + ln]
+        raw = memoryview(self.data)[off:off + ln]    # the decompressors read the map itself: no copy
         if comp == "":
             return bytes(raw)
         if comp == "zstd":
@@ -391,7 +391,7 @@ def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
     schemas: dict[int, tuple[str, str, bytes]] = {}
     channels: dict[int, tuple[str, int, str]] = {}
     metadata: dict[str, dict[str, str]] = {}
-    # per channel: list of (segment, offsets, lengths, log_times) or gathered (rows, lengths, log_times)
+    # per channel: list of parts (segment, payload, offsets, lengths, log_times), see _Part
     raw: dict[int, list] = {}
     last_good = [None]  # last log_time of a complete message
 
@@ -412,6 +412,12 @@ def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
             except (ValueError, struct.error):
                 rd.warn(f"{path}: damaged record (opcode {int(ops[i])}) in {where}; skipped")
 
+    def _is_image_channel(c: int) -> bool | None:
+        """None: the channel is not declared yet (MCAP declares it first; a damaged file may not)."""
+        if c not in channels:
+            return None
+        return lf.short_name(schemas.get(channels[c][1], ("",))[0]) == IMAGE_TYPE
+
     def handle_messages(seg, b, ops, offs, lens, chans, logts):
         m = (ops == OP_MESSAGE) & (chans >= 0)
         if not m.any():
@@ -424,7 +430,7 @@ def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
             o = offs[sel] + MESSAGE_HEADER
             ln = lens[sel] - MESSAGE_HEADER
             c = int(c)
-            raw.setdefault(c, []).append((seg, b, o, ln, logts[sel]))
+            raw.setdefault(c, []).append(_part(seg, b, o, ln, logts[sel], _is_image_channel(c)))
 
     ops, offs, lens, chans, logts, stop = scan_records(buf, 8, len(buf))
     # a complete file ends with the Footer record followed by the magic
@@ -473,12 +479,42 @@ def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
             continue
         topic, sid, msg_enc = channels[cid]
         sname, senc, stext = schemas.get(sid, ("", "", b""))
-        n_msgs = sum(len(p[2]) for p in parts)
+        n_msgs = sum(len(p[3]) for p in parts)
         log.topics[topic] = TopicInfo(topic, sname, msg_enc, n_msgs)
         if want is not None and topic not in want:
             continue
         _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_images)
     return log
+
+
+def _part(seg: int, b, o, ln, lt, image: bool | None) -> tuple:
+    """One chunk's (or the file's top level's) messages of one channel, ``(segment, payload,
+    offsets, lengths, log_times)``, in the form that does not keep the decompressed chunk alive
+    (a video log is several times the memory otherwise; each chunk is freed once scanned):
+
+    * images (``image`` True): only where they are, ``payload`` None (:class:`ImageStream` reads
+      them on demand);
+    * other messages: their payloads gathered now, ``payload`` the zero-padded (n, max length)
+      byte matrix and ``offsets`` None;
+    * a channel not declared yet (``image`` None, a damaged file): the chunk itself, ``b``.
+    """
+    if image:
+        return seg, None, o, ln, lt
+    if image is None:
+        return seg, b, o, ln, lt
+    return seg, gather_rows(b, o, ln, int(ln.max())), None, ln, lt
+
+
+def _part_rows(part: tuple, width: int, rd: "_Reader") -> np.ndarray:
+    """The (n, width) zero-padded payload matrix of a :func:`_part` (images: read from ``rd``)."""
+    seg, b, o, ln, _ = part
+    if o is not None:
+        if b is None:
+            b = np.frombuffer(rd.segment(seg), np.uint8)
+        return gather_rows(b, o, ln, width)
+    if b.shape[1] >= width:
+        return b
+    return np.pad(b, ((0, 0), (0, width - b.shape[1])))
 
 
 def _layout_for(sname: str, senc: str, stext: bytes, msg_enc: str) -> lf.Layout | None:
@@ -524,9 +560,7 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
                 log.other[topic] = (stream.t_ns, stream)
         return
     width = max(int(p[3].max()) for p in parts)
-    mats = []
-    for seg, b, o, ln, _ in parts:
-        mats.append(gather_rows(b, o, ln, width))
+    mats = [_part_rows(p, width, rd) for p in parts]
     rows = mats[0] if len(mats) == 1 else np.concatenate(mats)
     lengths = np.concatenate([p[3] for p in parts])
     vals, ok = layout.decode(rows, lengths)
@@ -675,10 +709,11 @@ def _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts):
         rd.warn(f"{path}: topic {topic}: unknown schema {sname!r} (encoding {senc!r}/{msg_enc!r}){why}; skipped")
         return
     t_all, msgs = [], []
-    for seg, b, o, ln, lt in parts:
-        for oi, li, ti in zip(o.tolist(), ln.tolist(), lt.tolist()):
+    for part in parts:
+        rows = _part_rows(part, int(part[3].max()), rd)
+        for r, li, ti in zip(rows, part[3].tolist(), part[4].tolist()):
             try:
-                msgs.append(dec(bytes(b[oi:oi + li])))
+                msgs.append(dec(r[:li].tobytes()))
                 t_all.append(ti)
             except Exception:
                 rd.warn(f"{path}: topic {topic}: message at {format_time(ti)} cannot be decoded; dropped")

@@ -442,3 +442,36 @@ def test_recording_images_in_batches_are_the_logs_bytes(ilog, tmp_path, monkeypa
         rerun_view.begin(rr.inputs, jobs, cams, tmp_path / "t.rrd", stop=stop)
     assert not list(tmp_path.glob(".t.rrd*")) and not (tmp_path / "t.rrd").exists()
 
+
+
+def test_image_sends_read_a_few_chunks_at_a_time(tmp_path):
+    """The recording's image sends (rerun_view.image_sends) give every frame's JPEG bytes once, at
+    most IMAGES_PER_SEND per send, each send's times in order; the frames are read group by group,
+    so the peak of Python-allocated memory stays near a group's chunks, not the 12 MB of the log's
+    images (each image views its decompressed chunk: reading a whole batch first held every chunk
+    of the log, 267 MB for the 30 s video)."""
+    import hashlib
+    import tracemalloc
+    from scenarios.log_reader import read_log
+    from scenarios.replay import rerun_view
+    from tests.test_log_format import _image_log
+    path = tmp_path / "img.mcap"
+    _, _, _, imgs = _image_log(path)
+    log = read_log(path)
+    inp = types.SimpleNamespace(cameras={k: types.SimpleNamespace(images=log.images[k]) for k in (1, 2)})
+    frames = [types.SimpleNamespace(k=k, t_ns=int(t)) for k in (1, 2) for t in log.images[k].t_ns]
+    list(rerun_view.image_sends(inp, frames[:4], [1, 2]))     # imports before the measurement
+    got = {1: [], 2: []}
+    tracemalloc.start()
+    try:
+        for k, t, blobs in rerun_view.image_sends(inp, frames, [1, 2]):
+            assert 0 < len(blobs) == len(t) <= rerun_view.IMAGES_PER_SEND and np.all(np.diff(t) > 0)
+            got[k] += [(int(x), hashlib.sha1(b).hexdigest()) for x, b in zip(t, blobs)]
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # a group is 2 x 8 images of ~100 kB in chunks of ~310 kB: ~6 chunks, ~1.9 MB
+    assert peak < 4_000_000, peak
+    for k, want in ((1, imgs[0::2]), (2, imgs[1::2])):
+        assert [x for x, _ in got[k]] == log.images[k].t_ns.tolist()
+        assert [h for _, h in got[k]] == [hashlib.sha1(b).hexdigest() for b in want]

@@ -332,26 +332,40 @@ def image_batches(inp, frames, cam_numbers, max_bytes: int | None = None) -> lis
 
 
 def _images(rec, rr, inp, frames, cam_numbers, stop=None):
-    """Each frame as its JPEG bytes (EncodedImage): the frames in :func:`image_batches`, read
-    batch by batch and sent :data:`IMAGES_PER_SEND` at a time, waiting for Rerun to write each
-    batch before the next is read when there are several; :class:`RecordingStopped` once ``stop``
-    is set. Each send's JPEG bytes are copied once, from the log's decompressed chunks into the
-    send's Arrow buffer (:func:`_blob_batch`)."""
-    batches = image_batches(inp, frames, cam_numbers)
+    """Each frame as its JPEG bytes (EncodedImage): the frames in :func:`image_batches`, sent as
+    :func:`image_sends` gives them, waiting for Rerun to write each batch before the next is read
+    when there are several; :class:`RecordingStopped` once ``stop`` is set."""
     for k in cam_numbers:
         if any(f.k == k for f in frames):
             rec.log(f"camera_{k}/image", rr.EncodedImage.from_fields(media_type="image/jpeg"), static=True)
-    for n, batch in enumerate(batches):
+    for n, batch in enumerate(image_batches(inp, frames, cam_numbers)):
         if n:
             rec.flush()    # bounded memory: the previous batch is written before this one is read
-        got = read_images(inp, batch, cam_numbers)
+        for k, t, blobs in image_sends(inp, batch, cam_numbers):
+            if stop is not None and stop.is_set():
+                raise RecordingStopped
+            rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t),
+                             columns=rr.EncodedImage.columns(blob=_blob_batch(blobs)))
+
+
+def image_sends(inp, frames, cam_numbers):
+    """``(camera, times (n,), JPEG bytes)`` per column send of the frames' images, at most
+    :data:`IMAGES_PER_SEND` images each: the frames are read in groups of that many per camera, in
+    time order (the log's order), and each image is a view into the log's decompressed chunk
+    (:func:`read_images`), so a group holds a few chunks, freed once its sends are made.
+
+    Read whole, the images of a batch held every chunk of the log at once: 270 MB of fresh memory
+    for the 30 s video, ~66 000 page faults, 0.2-1.2 s of system time in the recording process.
+    """
+    fr = sorted((f for f in frames if f.k in cam_numbers), key=lambda f: (f.t_ns, f.k))
+    group = IMAGES_PER_SEND * max(1, len({f.k for f in fr}))
+    for g in range(0, len(fr), group):
+        part = fr[g:g + group]
+        got = read_images(inp, part, cam_numbers)
         for k in cam_numbers:
-            t = np.array(sorted(f.t_ns for f in batch if f.k == k), np.int64)
+            t = np.array(sorted(f.t_ns for f in part if f.k == k), np.int64)
             for s in range(0, t.size, IMAGES_PER_SEND):
-                if stop is not None and stop.is_set():
-                    raise RecordingStopped
-                rec.send_columns(f"camera_{k}/image", indexes=_times(rr, inp, t[s:s + IMAGES_PER_SEND]),
-                                 columns=rr.EncodedImage.columns(blob=_blob_batch(got[k][s:s + IMAGES_PER_SEND])))
+                yield k, t[s:s + IMAGES_PER_SEND], got[k][s:s + IMAGES_PER_SEND]
         del got
 
 
