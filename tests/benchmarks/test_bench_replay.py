@@ -23,6 +23,8 @@ Figures (``bench.json``):
   workers, the Rerun recording process) as extra keys. Issue 7
   asks for >= 100x (demo) and >= 5x (video30). On 2 cores the vision front end's CPU time per
   frame bounds the demo's factor: ``stages.vision.cpu_s / frames`` is that figure.
+  ``decode_ms_per_frame_1core``: the JPEG decode of some of the run's frames timed alone in the
+  same run, the machine's speed at the time (it drifts by 20-40 % between runs).
 * ``replay.realtime_factor_video30_vision5hz``: the same with ``--vision-rate 5`` (every 6th frame
   of each camera through the front end).
 * ``replay.demo_att_rms_deg``: forward-filter attitude error RMS against the truth over the aided
@@ -95,8 +97,29 @@ def _record_rtf(bench, name, rr, wall, target):
     bench(name, flight / wall, "x real time", baseline=flight, ratio=flight / wall, wall_s=round(wall, 3),
           flight_s=flight, target=target, frames=frames, stages=stages,
           rerun_parts={k: round(v, 3) for k, v in rr.rerun_timings.items()},
-          vision_cpu_ms_per_frame=round(1e3 * rr.cpu_timings.get("vision", 0.0) / max(frames, 1), 2))
+          vision_cpu_ms_per_frame=round(1e3 * rr.cpu_timings.get("vision", 0.0) / max(frames, 1), 2),
+          decode_ms_per_frame_1core=_decode_reference(rr))
     return flight / wall
+
+
+def _decode_reference(rr, n: int = 40) -> float:
+    """The machine's speed in this run: milliseconds to decode one of the replayed JPEG frames
+    (``n`` spread over the run, both cameras) in this process alone, the best of 3 passes. The
+    decode is the largest per-frame cost of the vision stage and its code is fixed (libjpeg-turbo),
+    so it tells how fast the machine ran: this 2-core machine's speed drifts by 20-40 % between
+    runs, more than most changes move the real-time factors."""
+    from scenarios.jpeg import decode_frame
+    from scenarios.replay.rerun_view import read_images
+    fr = rr.frames[::max(1, len(rr.frames) // n)][:n]
+    got = read_images(rr.inputs, fr, rr.cam_numbers)
+    jpegs = [bytes(v) for k in rr.cam_numbers for v in got[k]]
+    best = float("inf")
+    for _ in range(3):
+        t = time.perf_counter()
+        for j in jpegs:
+            decode_frame(j)
+        best = min(best, (time.perf_counter() - t) / max(len(jpegs), 1))
+    return round(1e3 * best, 3)
 
 
 def test_bench_replay_demo(bench, is_quick):
