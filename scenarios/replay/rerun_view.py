@@ -355,7 +355,7 @@ def image_sends(inp, frames, cam_numbers):
     (:func:`read_images`), so a group holds a few chunks, freed once its sends are made.
 
     Read whole, the images of a batch held every chunk of the log at once: 270 MB of fresh memory
-    for the 30 s video, ~66 000 page faults, 0.2-1.2 s of system time in the recording process.
+    for the 30 s video, ~66 000 page faults, 0.5-1.2 s of system time in the recording process.
     """
     fr = sorted((f for f in frames if f.k in cam_numbers), key=lambda f: (f.t_ns, f.k))
     group = IMAGES_PER_SEND * max(1, len({f.k for f in fr}))
