@@ -147,3 +147,19 @@ print(sorted({{m.split(".")[0] for m in sys.modules}} - before))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[1])
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_recording_moved_into_place_over_an_old_one(tmp_path):
+    """The finished recording replaces a file of the same name (renamed aside, then deleted: no
+    ``.old`` left) or takes a free name; the content is the new file's."""
+    from scenarios.replay.rerun_view import move_into_place
+    path = tmp_path / "r.rrd"
+    path.write_bytes(b"old recording")
+    (tmp_path / ".r.rrd.tmp").write_bytes(b"new recording")
+    move_into_place(tmp_path / ".r.rrd.tmp", path)
+    assert path.read_bytes() == b"new recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd"]
+    (tmp_path / ".s.rrd.tmp").write_bytes(b"first")
+    move_into_place(tmp_path / ".s.rrd.tmp", tmp_path / "s.rrd")
+    assert (tmp_path / "s.rrd").read_bytes() == b"first"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd", "s.rrd"]

@@ -183,9 +183,26 @@ def finish(r: Recording, inp, res, smooth) -> Path | None:
     r.rec.flush()
     if r.tmp is not None:
         r.rec.disconnect()
-        r.tmp.replace(r.path)
+        move_into_place(r.tmp, r.path)
     tm["flush"] = time.perf_counter() - t
     return r.path
+
+
+def move_into_place(tmp: Path, path: Path) -> None:
+    """Rename the finished file ``tmp`` to ``path``; a file already there is renamed aside first
+    and deleted after. Why not one rename over it: ext4 (``auto_da_alloc``) allocates and starts
+    writing a file renamed over another before the rename returns, 0.14-0.15 s for a 290 MB
+    recording (the 30 s video's), against 0.06 s to delete the old one (0.1 ms per rename).
+    Interrupted in between, the old recording is left as ``.<name>.old``, the new one in place."""
+    path = Path(path)
+    old = path.with_name("." + path.name + ".old")
+    try:
+        path.replace(old)
+    except FileNotFoundError:
+        old = None
+    Path(tmp).replace(path)
+    if old is not None:
+        old.unlink(missing_ok=True)
 
 
 def temporary_path(path: Path) -> Path:
