@@ -391,7 +391,7 @@ def read_log(path, topics=None, *, include_images: bool = True) -> FlightLog:
     schemas: dict[int, tuple[str, str, bytes]] = {}
     channels: dict[int, tuple[str, int, str]] = {}
     metadata: dict[str, dict[str, str]] = {}
-    # per channel: list of parts (segment, payload, offsets, lengths, log_times), see _Part
+    # per channel: list of parts (segment, payload, offsets, lengths, log_times), see _part
     raw: dict[int, list] = {}
     last_good = [None]  # last log_time of a complete message
 
