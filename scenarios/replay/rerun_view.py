@@ -380,7 +380,7 @@ def image_sends(inp, frames, cam_numbers):
         part = fr[g:g + group]
         got = read_images(inp, part, cam_numbers)
         for k in cam_numbers:
-            t = np.array(sorted(f.t_ns for f in part if f.k == k), np.int64)
+            t = np.array([f.t_ns for f in part if f.k == k], np.int64)    # in order: fr is
             for s in range(0, t.size, IMAGES_PER_SEND):
                 yield k, t[s:s + IMAGES_PER_SEND], got[k][s:s + IMAGES_PER_SEND]
         del got
