@@ -152,7 +152,7 @@ print(sorted({{m.split(".")[0] for m in sys.modules}} - before))
 def test_recording_moved_into_place_over_an_old_one(tmp_path):
     """The finished recording replaces a file of the same name (renamed aside, then deleted: no
     ``.old`` left) or takes a free name; the content is the new file's."""
-    from scenarios.replay.rerun_view import move_into_place
+    from scenarios.atomic import move_into_place
     path = tmp_path / "r.rrd"
     path.write_bytes(b"old recording")
     (tmp_path / ".r.rrd.tmp").write_bytes(b"new recording")

@@ -36,6 +36,7 @@ import numpy as np
 from nav import earth
 from nav.ephemeris import sun_position_e
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
+from scenarios.atomic import move_into_place
 from scenarios.replay.solution_log import source_name
 from scenarios.replay.summary import attitude_error
 
@@ -186,23 +187,6 @@ def finish(r: Recording, inp, res, smooth) -> Path | None:
         move_into_place(r.tmp, r.path)
     tm["flush"] = time.perf_counter() - t
     return r.path
-
-
-def move_into_place(tmp: Path, path: Path) -> None:
-    """Rename the finished file ``tmp`` to ``path``; a file already there is renamed aside first
-    and deleted after. Why not one rename over it: ext4 (``auto_da_alloc``) allocates and starts
-    writing a file renamed over another before the rename returns, 0.14-0.15 s for a 290 MB
-    recording (the 30 s video's), against 0.06 s to delete the old one (0.1 ms per rename).
-    Interrupted in between, the old recording is left as ``.<name>.old``, the new one in place."""
-    path = Path(path)
-    old = path.with_name("." + path.name + ".old")
-    try:
-        path.replace(old)
-    except FileNotFoundError:
-        old = None
-    Path(tmp).replace(path)
-    if old is not None:
-        old.unlink(missing_ok=True)
 
 
 def temporary_path(path: Path) -> Path:
