@@ -1,7 +1,7 @@
 """Initial estimate of a camera's clock offset against the IMU time base (issue 9, 003 §7.3).
 
 003 §7.3: the ATEK cameras' clocks could not be synchronised with the system time. The offset is
-defined as in the simulator (``scenarios/simulate.py``): a frame taken at IMU time ``t`` is
+defined as in the simulator (``scenarios/sim/simulate.py``): a frame taken at IMU time ``t`` is
 stamped ``t + tau``, so the frame stamped ``s`` was taken at ``s - tau``.
 
 Method: rotation changes

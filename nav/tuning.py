@@ -2,7 +2,7 @@
 
 The default values are 003 table 3 (CONVENTIONS.md "The reference flight"); the TOML file that
 holds them lives in ``scenarios/library/tuning/table3.toml`` and is read by
-``scenarios/tuning_file.py``. Every error group is ``"E"`` (estimated), ``"C"`` (considered only,
+``scenarios/config/tuning.py``. Every error group is ``"E"`` (estimated), ``"C"`` (considered only,
 Schmidt-Kalman, 003 §6.1 and ref. [14]) or ``"off"`` (not modelled).
 
 Units in the TOML follow 003 table 3 and end in the unit (``_mg``, ``_ppm``, ``_mrad``, ``_deg_h``,

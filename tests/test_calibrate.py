@@ -1,4 +1,4 @@
-"""Camera calibration (scenarios/commands/calibrate.py) on chessboards rendered through a known
+"""Camera calibration (scenarios/cli/calibrate.py) on chessboards rendered through a known
 fisheye camera with vision.camera.unproject (every pixel's ray intersected with the board plane,
 4x4 supersampled so the corners are sub-pixel accurate): the recovered camera must reproject like
 the true one."""
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from nav.rotation import rotvec_to_matrix
-from scenarios.camera_file import load_camera
-from scenarios.commands.calibrate import calibrate_images, parse_board
+from scenarios.config.camera import load_camera
+from scenarios.cli.calibrate import calibrate_images, parse_board
 from scenarios.errors import UserError
 from vision.camera import from_fov, project, unproject
 

@@ -1,4 +1,4 @@
-"""Tests of scenarios/camera_file.py: TOML camera files, round trip and error messages."""
+"""Tests of scenarios/config/camera.py: TOML camera files, round trip and error messages."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenarios.camera_file import dumps_camera, load_camera, save_camera
+from scenarios.config.camera import dumps_camera, load_camera, save_camera
 from scenarios.errors import UserError
 from vision.camera import FisheyeCamera, atek_camera, project, unproject
 

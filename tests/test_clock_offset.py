@@ -2,7 +2,7 @@
 (nav/clock_offset.py) and the per-camera offset state in the filter (nav/navigator.py).
 
 Truth: the atek simulator stamps camera frames taken at true time t with t + clock_offset_s
-(scenarios/simulate.py), so the offset is known exactly.
+(scenarios/sim/simulate.py), so the offset is known exactly.
 """
 from __future__ import annotations
 
@@ -106,8 +106,8 @@ def test_vector_rate_against_finite_difference(target):
 # ------------------------------------------------------------------------------------------------
 
 def _flight(offsets, seed, *, mis_deg=1.0, t_end=T_END):
-    from scenarios import simulate as S
-    from scenarios.scenario import load_scenario
+    from scenarios.sim import simulate as S
+    from scenarios.sim.scenario import load_scenario
     sc = copy.deepcopy(load_scenario("atek"))
     for c, o in zip(sc.cameras, offsets):
         c.clock_offset_s = o

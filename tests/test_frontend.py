@@ -1,7 +1,7 @@
 """Vision front end (vision/frontend.py): rendered frames with exact truth, covariance honesty,
 configuration file, bad input.
 
-Truth: scenarios/render.py draws the WGS-84 ellipsoid along each pixel's ray through the same
+Truth: scenarios/sim/render.py draws the WGS-84 ellipsoid along each pixel's ray through the same
 camera model, and gives the true geocentric nadir e_c_earth and Sun direction e_c_sun. In the
 geometric mode (white ellipsoid on black space, no atmosphere) the only error left is the pixel
 quantisation of the edge, so the estimate must reach the pixel-noise floor (1 px ~ 0.05 deg at
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from nav import earth, ephemeris, timescales
-from scenarios import render
-from scenarios.vision_config import load_vision_config, vision_config_from_dict
+from scenarios.sim import render
+from scenarios.config.vision import load_vision_config, vision_config_from_dict
 from scenarios.errors import UserError
 from vision import mask as vmask
 from vision.camera import atek_camera, unproject
@@ -115,8 +115,8 @@ def test_mirrored_nadir_is_detected_by_the_side_probe(geo_frames):
 def flight_frames():
     """10 frames of the atek scenario (both cameras, T+100..T+400), rendered with the default look
     and JPEG-encoded/decoded as the flight log stores them."""
-    from scenarios.scenario import load_scenario
-    from scenarios.simulate import simulate_flight
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
 
     fl = simulate_flight(load_scenario("atek"), seed=0, duration=405.0, imu_errors=False)
     recs = render.flight_frame_truths(fl)

@@ -16,7 +16,7 @@ from vision.borders import SearchConfig, search_line_spacing, search_rows
 from vision.camera import atek_camera, project
 from vision.candidates import Candidate
 from vision.oblate import ellipsoid_model
-from scenarios import render
+from scenarios.sim import render
 from tests.poses import pose
 from tests.test_frontend import CAM, GEO_POSES, SUN, angle_deg, geometric_config
 

@@ -1,6 +1,6 @@
 """Importing real flights (scenarios/importer, docs/import.md).
 
-Truth: a simulated ATEK flight (120 s, scenarios.simulate) written as a log, exported to CSV +
+Truth: a simulated ATEK flight (120 s, scenarios.sim.simulate) written as a log, exported to CSV +
 image folders + videos, re-imported. Tolerances:
 
 * CSV text written with the shortest round-trip float representation (Arrow, like ``repr``) and
@@ -27,18 +27,18 @@ import pytest
 from nav import earth
 from nav.timescales import format_utc, utc_to_gps_ns
 from scenarios.cli import main
-from scenarios.commands.simulate import write_log
+from scenarios.cli.simulate import write_log
 from scenarios.errors import UserError
 from scenarios.importer.build import ValidationFailed, import_flight
 from scenarios.importer.export import export_log
 from scenarios.importer.footage import check_jpeg, jpeg_structure
 from scenarios.importer.mapping import load_mapping
-from scenarios.log_reader import read_log
-from scenarios.log_writer import LogWriter
-from scenarios.render import (DEFAULT_PAYLOAD_MASK, RenderOptions, flight_frame_truths, payload_mask,
+from scenarios.flightlog.reader import read_log
+from scenarios.flightlog.writer import LogWriter
+from scenarios.sim.render import (DEFAULT_PAYLOAD_MASK, RenderOptions, flight_frame_truths, payload_mask,
                               render_flight_frames)
-from scenarios.scenario import load_scenario
-from scenarios.simulate import simulate_flight
+from scenarios.sim.scenario import load_scenario
+from scenarios.sim.simulate import simulate_flight
 
 T0 = 1_560_392_460_000_000_000  # 2019-06-13T02:21:00Z
 G0 = 9.80665

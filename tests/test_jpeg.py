@@ -1,9 +1,9 @@
-"""scenarios.jpeg.decode_frame: the same pixels as cv2.imdecode (the reference) for the renderer's
+"""scenarios.flightlog.jpeg.decode_frame: the same pixels as cv2.imdecode (the reference) for the renderer's
 JPEGs, grey JPEGs and PNGs; None for bytes that are not an image or a truncated JPEG."""
 import cv2
 import numpy as np
 
-from scenarios.jpeg import decode_frame
+from scenarios.flightlog.jpeg import decode_frame
 
 
 def _img(seed=0, h=96, w=160):

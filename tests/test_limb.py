@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from scenarios import render
+from scenarios.sim import render
 from vision import mask as vmask
 from tests.poses import pose
 from tests.test_frontend import CAM, angle_deg
@@ -269,8 +269,8 @@ def test_limb_near_the_sun_with_the_phase_slope():
     phase function (measured 0.073 against 0.096 deg; the same frame rendered without the aerosol
     lobe: 0.042)."""
     from nav import ephemeris
-    from scenarios.scenario import load_scenario
-    from scenarios.simulate import simulate_flight
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
     fl = simulate_flight(load_scenario("atek"), seed=0, duration=72.0, imu_errors=False)
     lo = fl.truth.liftoff_ns
     r = min((q for q in render.flight_frame_truths(fl) if q.camera_index == 1), key=lambda q: abs((q.t_ns - lo) * 1e-9 - 70))

@@ -1,6 +1,6 @@
 """Sun-path model of the fraction-of-peak limb edge (vision/limb.py eq. (4)-(5)) and the geodetic
 Sun elevation at the limb tangent point, against independent references: the renderer's own 1-D
-limb radiance (scenarios.render.limb_profile, a separate implementation of the same physics),
+limb radiance (scenarios.sim.render.limb_profile, a separate implementation of the same physics),
 closed forms, and exact tangent geometry on the WGS-84 ellipsoid."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from nav import earth
-from scenarios import render
+from scenarios.sim import render
 from vision.frontend import TargetConfig
 from vision.limb import fraction_height_shift, profile_height_shift, sun_elevation, sun_path_ratio
 
@@ -97,7 +97,7 @@ def test_twilight_table_validation():
 
 
 def _render_params(H=8000.0, R=6371e3):
-    from scenarios import _render_kernel as K
+    from scenarios.sim import _render_kernel as K
     P = np.zeros(K.N_PARAMS)
     P[K.H_SCALE], P[K.CH_MAX], P[K.R_MEAN] = H, math.sqrt(math.pi * R / (2 * H)), R
     return K, P
@@ -105,7 +105,7 @@ def _render_params(H=8000.0, R=6371e3):
 
 @pytest.mark.parametrize("mu", [0.3, 0.02, 0.0, -1e-9, -0.005, -0.02, -0.04])
 def test_sun_path_air_mass_renderer_equals_vision_model(mu):
-    """The renderer's Sun-path air mass (scenarios._render_kernel, numba) and the vision model's
+    """The renderer's Sun-path air mass (scenarios.sim._render_kernel, numba) and the vision model's
     c = m_s / m (`sun_path_ratio`, numpy) are separate implementations of the same geometry:
     m_s = 2C c exp(-h/H) to 1e-12, continuous through mu = 0 (the erf form of twilight)."""
     K, P = _render_params()

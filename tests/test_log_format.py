@@ -1,4 +1,4 @@
-"""Tests of the MCAP flight-log format (scenarios/logformat.py, log_writer.py, log_reader.py).
+"""Tests of the MCAP flight-log format (scenarios/flightlog/format.py, writer.py, reader.py).
 
 Truth sources: the values written (round trips must be bit-identical: CDR stores IEEE-754 float64
 as is), the reference CDR codec of ``mcap_ros2`` (an independent implementation of the same
@@ -20,10 +20,10 @@ from mcap.writer import Writer as McapWriter
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from scenarios import logformat as lf
+from scenarios.flightlog import format as lf
 from scenarios.errors import UserError
-from scenarios.log_reader import LogFormatError, LogWarning, read_log
-from scenarios.log_writer import LogWriter
+from scenarios.flightlog.reader import LogFormatError, LogWarning, read_log
+from scenarios.flightlog.writer import LogWriter
 
 T0 = 1_560_392_460_000_000_000  # 2019-06-13T02:21:00Z
 META = {"scenario": "[flight]\nname = \"test\"\n", "seed": 7, "liftoff_utc_ns": T0, "kind": "simulated"}
@@ -288,12 +288,12 @@ def test_vectorised_codec_matches_mcap_ros2_bytes(short):
 
 
 def test_image_data_parsed_directly_as_mcap_ros2_writes_it():
-    """The direct parse of one CompressedImage (scenarios.log_reader._compressed_image_span) gives
+    """The direct parse of one CompressedImage (scenarios.flightlog.reader._compressed_image_span) gives
     the data bytes of messages serialised by mcap_ros2 (frame_id and format of every length
     mod 4, so every alignment; empty data included); truncated or wrongly encapsulated messages
     give None (the general decoder then reports them)."""
     from mcap_ros2._dynamic import serialize_dynamic
-    from scenarios.log_reader import IMAGE_TYPE, _compressed_image_span
+    from scenarios.flightlog.reader import IMAGE_TYPE, _compressed_image_span
 
     def _compressed_image_data(buf, off, ln):
         span = _compressed_image_span(buf, off, ln)
@@ -322,7 +322,7 @@ def test_image_stream_pickles_as_path_and_index(full_log, tmp_path):
     bytes; a file replaced meanwhile is an error naming it, not other images."""
     import pickle
     import shutil
-    from scenarios.log_reader import LogFormatError, read_log
+    from scenarios.flightlog.reader import LogFormatError, read_log
     path, d = full_log
     copy = tmp_path / "copy.mcap"
     shutil.copy(path, copy)
@@ -614,7 +614,7 @@ def test_schema_texts_parse_back_to_the_same_structure():
 
 
 def test_docs_carry_every_message_definition():
-    """docs/log-format.md repeats the definitions of logformat.MSG_TEXTS verbatim (one source)."""
+    """docs/log-format.md repeats the definitions of scenarios.flightlog.format.MSG_TEXTS verbatim (one source)."""
     doc = (Path(__file__).resolve().parents[1] / "docs" / "log-format.md").read_text()
     for short, text in lf.MSG_TEXTS.items():
         assert f"`{lf.ros2_name(short)}`:\n\n```\n{text.rstrip()}\n```" in doc, short
@@ -627,7 +627,7 @@ def test_imu_layout_is_324_bytes_as_documented():
     assert len(layout.encode(v, 1)[0]) == 324
 
 
-# ---------------------------------------------------------------- bulk MCAP writer (scenarios._mcap_chunks)
+# ---------------------------------------------------------------- bulk MCAP writer (scenarios.flightlog._chunks)
 def _interleaved_log(path, *, chunk_size=4096, compression="zstd", windows=None):
     """IMU at 400 Hz, GPS at 10 Hz, truth at 50 Hz, NavSolution (state_names in the first message:
     two layouts) and measurements of varying size, written out of order across calls (optionally
@@ -866,7 +866,7 @@ def test_encode_groups_rows_are_the_payloads_after_a_head():
 def test_image_not_parsed_directly_goes_through_the_general_decoder(full_log, monkeypatch):
     """An image message the direct parse does not accept (here: every one) is read by the general
     decoder: the same bytes, through ``stream[i]`` and ``stream.view(i)``."""
-    from scenarios import log_reader
+    from scenarios.flightlog import reader as log_reader
     path, d = full_log
     st = log_reader.read_log(path).cameras[2].images
     monkeypatch.setattr(log_reader, "_compressed_image_span", lambda buf, off, ln: None)

@@ -4,8 +4,8 @@ import warnings
 
 import numpy as np
 
-from scenarios.log_reader import read_log
-from scenarios.log_writer import LogWriter
+from scenarios.flightlog.reader import read_log
+from scenarios.flightlog.writer import LogWriter
 
 T0 = 1_560_392_460_000_000_000
 META = {"scenario": "", "seed": 0, "liftoff_utc_ns": T0, "kind": "simulated"}

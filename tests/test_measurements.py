@@ -146,7 +146,7 @@ def test_layout_and_tuning_parse():
 
 
 def test_default_tuning_file_is_table3():
-    from scenarios.tuning_file import load_tuning
+    from scenarios.config.tuning import load_tuning
     t = load_tuning()
     assert t == Tuning()
     assert t.accel_bias.sigma == pytest.approx(2e-3 * 9.80665)

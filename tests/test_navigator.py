@@ -218,7 +218,7 @@ def test_triad_initialisation_back_propagated():
 
 
 # ------------------------------------------------------------------------------------------------
-# scenarios.simulate flights
+# scenarios.sim.simulate flights
 # ------------------------------------------------------------------------------------------------
 
 @dataclass
@@ -235,12 +235,12 @@ class FlightInputs:
 
 def flight_inputs(fl, t_start_s, *, ideal_imu=False, vec_sigma=math.radians(0.05), seed=0, gm=True,
                   tc=20.0, noise=True, white=0.0):
-    """Navigator inputs from a ``scenarios.simulate.FlightData``. The vectors are the simulator's
+    """Navigator inputs from a ``scenarios.sim.simulate.FlightData``. The vectors are the simulator's
     true camera-frame directions (where the horizon / the Sun is in view) plus the stand-in vision
     error the issue allows: isotropic ``vec_sigma`` per vector across the line of sight, as a
     Gauss-Markov process with T_c (003 eqs. (41)-(45)) (``gm=False``: white) plus optional white
     noise ``white``; ``P_c`` is the GM covariance."""
-    from scenarios import imu_model
+    from scenarios.sim import imu as imu_model
     tr = fl.truth
     imu = imu_model.ideal_imu(tr, fl.scenario.imu.rate_hz, fl.imu.output, fl.scenario.imu.sample) if ideal_imu else fl.imu
     g, a = imu.gyro, imu.accel
@@ -297,8 +297,8 @@ def truth_init(fi: FlightInputs):
 
 @pytest.fixture(scope="module")
 def atek_nav_grade_ideal():
-    from scenarios.scenario import load_scenario
-    from scenarios.simulate import simulate_flight
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
     return simulate_flight(load_scenario("atek-nav-grade"), seed=1, duration=430.0, imu_errors=False)
 
 
@@ -327,7 +327,7 @@ def test_zero_noise_filter_holds_on_coast(atek_nav_grade_ideal):
     end = s + 400 * 120  # 120 s of the coast keep the test short
     imu = ImuData(fi.imu.t_ns[:end], fi.imu.f_b[:end], fi.imu.w_b[:end], fi.imu.sample)
     # error-free GPS: the truth at the fix times (covariance shrunk accordingly)
-    from scenarios.gps_model import truth_at
+    from scenarios.sim.gps import truth_at
     xg, vg = truth_at(fl.truth, (fi.gps.t_ns - fl.liftoff_ns) / NS)
     gps = GpsData(fi.gps.t_ns, xg, fi.gps.P_x * 1e-6, vg, fi.gps.P_v * 1e-6)
     res = run(imu, truth_init(fi), Tuning(), gps=gps, vectors=fi.vectors, R_bc=[c.R_bc for c in fl.cameras])
@@ -397,8 +397,8 @@ def consistency_study(n_runs: int, *, t_end=430.0, tuning: Tuning | None = None,
     """n_runs filters over the coast (T+60..t_end) of one simulated truth with independent IMU,
     GPS, camera-misalignment, vector-error and initial-error draws per run."""
     from scipy.stats import chi2
-    from scenarios import simulate as S
-    from scenarios.scenario import load_scenario
+    from scenarios.sim import simulate as S
+    from scenarios.sim.scenario import load_scenario
     sc = load_scenario(scenario)
     tr = _truth_cache(scenario, t_end)
     tun = tuning or matched_tuning()
@@ -450,8 +450,8 @@ _TRUTH = {}
 
 
 def _truth_cache(name, t_end):
-    from scenarios.scenario import load_scenario
-    from scenarios.truth import simulate_truth
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.truth import simulate_truth
     if (name, t_end) not in _TRUTH:
         _TRUTH[(name, t_end)] = simulate_truth(load_scenario(name), t_end)
     return _TRUTH[(name, t_end)]
@@ -562,8 +562,8 @@ def gnss_ins_comparison(fl, t_end_s=None):
 
 
 def _pyins_case(t_end_s):
-    from scenarios import simulate as S
-    from scenarios.scenario import load_scenario
+    from scenarios.sim import simulate as S
+    from scenarios.sim.scenario import load_scenario
     sc = load_scenario("atek")
     tr = _truth_cache("atek", 430.0)
     imu, errs = S.simulate_imu(tr, sc.imu, S.rng_for(7, S.STREAM_IMU))
@@ -602,8 +602,8 @@ def atek_accuracy(mis_deg=1.0, seed=21, t_end=430.0, smoother=False):
     from nav.initialise import triad_initialise
     from nav.smoother import rts_smooth
     from nav.tuning import StateGroupTuning
-    from scenarios import simulate as S
-    from scenarios.scenario import load_scenario
+    from scenarios.sim import simulate as S
+    from scenarios.sim.scenario import load_scenario
     sc = copy.deepcopy(load_scenario("atek"))
     for c in sc.cameras:
         c.misalignment_sigma_deg = mis_deg

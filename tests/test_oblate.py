@@ -13,7 +13,7 @@ import pytest
 
 from nav import earth, ephemeris, timescales
 from nav.rotation import rotvec_to_matrix
-from scenarios import render
+from scenarios.sim import render
 from vision.camera import atek_camera
 from vision.frontend import FramePrior, default_config, process_frame
 from vision.nadir import nadir_from_horizon

@@ -1,4 +1,4 @@
-"""Synthetic camera images (scenarios/render.py): geometric truth, determinism, bad input."""
+"""Synthetic camera images (scenarios/sim/render.py): geometric truth, determinism, bad input."""
 import math
 import subprocess
 import sys
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from nav import earth, ephemeris, timescales
-from scenarios import render
-from scenarios.commands.render import parse_mission_time
+from scenarios.sim import render
+from scenarios.cli.render import parse_mission_time
 from scenarios.errors import UserError
 from vision.camera import FisheyeCamera, camera_from_dict, from_fov, unproject
 from tests.poses import pose

@@ -47,7 +47,7 @@ def test_replay_vectors_log_and_round_trip(vlog, tmp_path):
     """Vectors-only log: every vector is offered, the attitude converges inside its 3 sigma, the
     solution MCAP round-trips (one /nav/measurements message per innovation + TRIAD) and
     `rerun mcap convert` opens it."""
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     from scenarios.replay.inputs import read_multi
     from scenarios.replay.pipeline import replay
     from scenarios.replay.summary import summarize
@@ -119,7 +119,7 @@ def test_sigint_leaves_valid_partial_log(vlog, tmp_path):
     valid MCAP marked incomplete, with the vectors given to the filter (docs/replay.md: what 'up to
     the interruption' contains). The Rerun recording, begun before the filter, is abandoned: neither
     the .rrd nor its temporary file remains."""
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     out = tmp_path / "int.solution.mcap"
     rrd = tmp_path / "int.rrd"
     proc = subprocess.run([sys.executable, "-c", _SIGINT_CHILD, "replay", str(vlog), "-o", str(out), "--rrd", str(rrd),

@@ -34,7 +34,7 @@ def test_pool_matches_in_process(ilog):
     seeded by its stamp, so the result cannot depend on where it runs)."""
     from scenarios.replay.inputs import load_inputs
     from scenarios.replay.vision_worker import FrameJob, run_vision
-    from scenarios.vision_config import load_vision_config
+    from scenarios.config.vision import load_vision_config
     inp = load_inputs(ilog)
     cams = {k: c.camera for k, c in inp.cameras.items()}
     cfg = load_vision_config(None, camera=inp.cameras[1].camera)
@@ -72,7 +72,7 @@ def test_overlay_conic_is_the_visible_horizon(ilog):
     from nav.rotation import quat_to_matrix
     from scenarios.replay.inputs import load_inputs
     from scenarios.replay.vision_worker import FrameJob, run_vision
-    from scenarios.vision_config import load_vision_config
+    from scenarios.config.vision import load_vision_config
     from vision.camera import unproject
     inp = load_inputs(ilog)
     cams = {k: c.camera for k, c in inp.cameras.items()}
@@ -178,7 +178,7 @@ def test_vision_rate_decimates_frames():
 def test_interrupt_during_vision_keeps_processed_frames(ilog, tmp_path, monkeypatch):
     """Ctrl-C during the vision stage (in-process, at the 5th frame): a valid partial solution log
     with the vectors of the 4 frames processed, marked incomplete with a reason that says so."""
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     from scenarios.replay import vision_worker
     from scenarios.replay.pipeline import replay
     calls = []
@@ -240,7 +240,7 @@ def test_spawned_workers_match(ilog, monkeypatch):
     front end once; same vectors as in-process."""
     from scenarios.replay import vision_worker as vw
     from scenarios.replay.inputs import load_inputs
-    from scenarios.vision_config import load_vision_config
+    from scenarios.config.vision import load_vision_config
     inp = load_inputs(ilog)
     c = inp.cameras[1]
     cfg = load_vision_config(None, camera=c.camera)
@@ -262,7 +262,7 @@ def test_sun_search_skipped_only_outside_the_field_of_view():
     import math
 
     from scenarios.replay.vision_worker import sun_out_of_view
-    from scenarios.vision_config import load_vision_config
+    from scenarios.config.vision import load_vision_config
     from vision.camera import atek_camera
     cam = atek_camera()
     cfg = load_vision_config(None, camera=cam)
@@ -285,7 +285,7 @@ def test_payload_mask_from_the_log_and_from_a_file(ilog, tmp_path):
     a mask of the wrong size, an unreadable file or a camera that is not replayed is a clear error."""
     import cv2
 
-    from scenarios import render
+    from scenarios.sim import render
     from scenarios.replay.inputs import load_inputs
     from scenarios.replay.pipeline import _payload_masks, replay
     inp = load_inputs(ilog)
@@ -318,7 +318,7 @@ def test_payload_mask_from_the_log_and_from_a_file(ilog, tmp_path):
 def test_mask_option_syntax():
     import argparse
 
-    from scenarios.commands import replay as cmd
+    from scenarios.cli import replay as cmd
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
     assert cmd.options_from_args(p.parse_args(["f.mcap", "--mask", "2=a.png", "--mask", "1=b.png"])).masks == \
@@ -452,7 +452,7 @@ def test_image_sends_read_a_few_chunks_at_a_time(tmp_path):
     of the log, 267 MB for the 30 s video)."""
     import hashlib
     import tracemalloc
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     from scenarios.replay import rerun_view
     from tests.test_log_format import _image_log
     path = tmp_path / "img.mcap"

@@ -64,7 +64,7 @@ def test_recording_failure_is_raised_and_the_solution_kept(vlog, tmp_path, monke
     log is being written): the replay raises its error with the process's traceback, the solution log is
     complete, and neither the .rrd nor its temporary file remains."""
     import pytest
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     from scenarios.replay import rerun_view
     from scenarios.replay.pipeline import replay
     from scenarios.replay.recording_process import RecordingError

@@ -3,7 +3,7 @@ import pytest
 
 from scenarios import cli
 from scenarios.errors import UserError
-from scenarios.scenario import LIBRARY_DIR, library, library_names, load_scenario
+from scenarios.sim.scenario import LIBRARY_DIR, library, library_names, load_scenario
 
 ATEK_TEXT = (LIBRARY_DIR / "atek.toml").read_text()
 

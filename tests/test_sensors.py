@@ -10,13 +10,13 @@ import copy
 import numpy as np
 import pytest
 
-from scenarios import camera_geometry as cg
-from scenarios.gps_model import simulate_gps, truth_at
-from scenarios.imu_model import (DEG_RT_H, MG, ImuSamples, apply_errors, draw_imu_errors, ideal_imu,
+from scenarios.sim import camera_geometry as cg
+from scenarios.sim.gps import simulate_gps, truth_at
+from scenarios.sim.imu import (DEG_RT_H, MG, ImuSamples, apply_errors, draw_imu_errors, ideal_imu,
                                  noise_sigmas, simulate_imu)
-from scenarios.scenario import load_scenario
-from scenarios.simulate import rng_for, simulate_flight
-from scenarios.truth import simulate_truth
+from scenarios.sim.scenario import load_scenario
+from scenarios.sim.simulate import rng_for, simulate_flight
+from scenarios.sim.truth import simulate_truth
 from vision.camera import atek_camera, from_fov
 
 

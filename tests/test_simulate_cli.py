@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from scenarios import cli
-from scenarios.scenario import load_scenario
-from scenarios.simulate import simulate_flight
+from scenarios.sim.scenario import load_scenario
+from scenarios.sim.simulate import simulate_flight
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +18,7 @@ def log_path(tmp_path_factory):
 
 
 def test_log_contents(log_path):
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     assert log_path.exists()
     assert [p.name for p in log_path.parent.iterdir()] == ["atek.mcap"]  # no temp file left behind
     log = read_log(log_path)
@@ -58,7 +58,7 @@ def test_plot_truth_png(tmp_path):
 def test_simulate_writes_rendered_images(tmp_path):
     import cv2
 
-    from scenarios.log_reader import read_log
+    from scenarios.flightlog.reader import read_log
     out = tmp_path / "img.mcap"
     assert cli.main(["simulate", "atek", "-o", str(out), "--duration", "61.5", "--quiet",
                      "--jpeg-quality", "70"]) == 0

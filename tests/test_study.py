@@ -237,7 +237,7 @@ def test_white_vector_noise_is_drawn_as_told(tmp_path):
     stream (the GM draws are unchanged). With ~120 vectors (T+60..T+100) of 2 tangent axes, n ~ 240
     samples, the sample sigma of the added error has a relative standard error of 1/sqrt(2 n) ~ 4.5 %:
     within 20 % of the told one (4.4 standard errors)."""
-    from scenarios import simulate as S
+    from scenarios.sim import simulate as S
     from scenarios.study.runner import cached_truth, simulated_vectors, white_sigma
     from scenarios.study.studyfile import build_variant
     st = write_study(tmp_path, t_end=100.0)

@@ -6,11 +6,11 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from nav import earth
-from scenarios import _truth_kernel as kern
-from scenarios import atmosphere
-from scenarios.imu_model import ideal_imu
-from scenarios.scenario import G0, load_scenario
-from scenarios.truth import simulate_truth, summary
+from scenarios.sim import _truth_kernel as kern
+from scenarios.sim import atmosphere
+from scenarios.sim.imu import ideal_imu
+from scenarios.sim.scenario import G0, load_scenario
+from scenarios.sim.truth import simulate_truth, summary
 
 MG = 1e-3 * G0
 

@@ -1,11 +1,11 @@
-"""Truth vectors (scenarios/truth_vectors.py): covariance from the vision error model, errors
+"""Truth vectors (scenarios/sim/truth_vectors.py): covariance from the vision error model, errors
 distributed as that covariance, log round trip."""
 import math
 
 import numpy as np
 import pytest
 
-from scenarios.truth_vectors import camera_truth_vectors
+from scenarios.sim.truth_vectors import camera_truth_vectors
 from vision.camera import atek_camera
 from vision.error_model import predict_vision
 

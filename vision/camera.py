@@ -672,7 +672,7 @@ def atek_camera() -> FisheyeCamera:
 
 
 # ----------------------------------------------------------------------------------------------
-# dict form (camera files; the file I/O is in scenarios/camera_file.py)
+# dict form (camera files; the file I/O is in scenarios/config/camera.py)
 
 _DICT_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "model", "k", "opencv_D", "name"}
 

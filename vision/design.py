@@ -2,7 +2,7 @@
 fig. 8) and the roll/pitch sensitivity of the horizon measurement (§4, figs. 19-22).
 
 Pure computation (arrays in, arrays out); the plots and CSV files are written by
-``scenarios/commands/analyze.py``.
+``scenarios/cli/analyze.py``.
 
 Visibility of the horizon conic (003 §2.7)
 ------------------------------------------

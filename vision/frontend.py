@@ -338,7 +338,7 @@ class VisionConfig:
 
 def default_config(focal_px: float = 1110.0) -> VisionConfig:
     """Defaults for the ATEK-like cameras: the values of scenarios/library/vision/default.toml
-    (which `scenarios.vision_config` loads; tests/test_frontend.py checks they agree), kept here so
+    (which `scenarios.config.vision` loads; tests/test_frontend.py checks they agree), kept here so
     that `vision` needs no file I/O. ``focal_px`` sets the Sun/Moon search-line spacing."""
     sun_spacing = search_line_spacing(focal_px, math.radians(0.5))
     earth = TargetConfig(

@@ -402,7 +402,7 @@ def _profile_crossings(image, uv, n, s, config: LimbEdgeConfig, slope=None):
 def phase_function(cos_g, aerosol_weight: float = 0.0, aerosol_g: float = 0.75) -> np.ndarray:
     """Scattering phase function of the limb (up to a constant): Rayleigh ``3/4 (1 + cos^2 g)``
     and a Henyey-Greenstein aerosol lobe ``(1 - g^2) / (1 + g^2 - 2 g cos)^(3/2)`` weighted by
-    ``aerosol_weight`` (the renderer's atmosphere, `scenarios.render`)."""
+    ``aerosol_weight`` (the renderer's atmosphere, `scenarios.sim.render`)."""
     c = np.asarray(cos_g, dtype=float)
     return _phase(c, float(aerosol_weight), float(aerosol_g))
 
@@ -530,7 +530,7 @@ def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, r
 @numba.njit(cache=True)
 def _tangent_kernel(rays, x, s, a, b, h_out, mu_out):
     """Per ray: the tangent point in the scaled space ``diag(1, 1, a/b)`` (where the ellipsoid is
-    the sphere of radius a), its height ``(|T'| - a) |T| / |T'|`` (`scenarios.render.ray_ellipsoid`'s
+    the sphere of radius a), its height ``(|T'| - a) |T| / |T'|`` (`scenarios.sim.render.ray_ellipsoid`'s
     h_t: the scaled-sphere height times the local radius over a), and the sine of the Sun elevation
     above the geodetic horizon there (normal ``(x/a^2, y/a^2, z/b^2)``)."""
     q = a / b

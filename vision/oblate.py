@@ -145,7 +145,7 @@ def ellipsoid_limb_rays(x_e: np.ndarray, R_ec: np.ndarray, n: int = 720,
     """Exact limb rays (n, 3) in the camera frame of the WGS-84 ellipsoid (+ d) seen from x_e:
     the circle of tangency in the scaled frame mapped back (an independent construction for the
     tests: the rays are tangent to the ellipsoid, which the tests verify with
-    `scenarios.render.ray_ellipsoid`)."""
+    `scenarios.sim.render.ray_ellipsoid`)."""
     a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
     s = np.array([1.0, 1.0, a / b])
     xs = s * np.asarray(x_e, dtype=float)

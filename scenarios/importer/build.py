@@ -6,7 +6,7 @@ Steps of :func:`import_flight`:
    nothing decoded yet) and load the camera files;
 2. validate (``validate``): the report is returned, printed by the command and optionally saved;
    errors stop the import (nothing is written) unless ``force``;
-3. write the log (``scenarios.log_writer.LogWriter``, kind ``"real"``): ``/tf_static`` (camera
+3. write the log (``scenarios.flightlog.writer.LogWriter``, kind ``"real"``): ``/tf_static`` (camera
    mounts q_bc) and ``/camera_<k>/camera_info`` at the first stamp, then the IMU, GPS and image
    messages window by window in time order (``LogWriter.advance``), so a long video is streamed, not
    held in memory. The mapping text and the report go into the metadata (``mapping``,
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios.camera_file import load_camera, read_payload_mask
+from scenarios.config.camera import load_camera, read_payload_mask
 from scenarios.errors import UserError
 from vision.camera import to_opencv
 
@@ -104,7 +104,7 @@ def _windows(t0: int, t1: int, window_s: float) -> np.ndarray:
 def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, window_s: float = 10.0,
               compression: str = "zstd", progress=None) -> dict:
     """Write the prepared data as an MCAP log (module docstring); returns message counts."""
-    from scenarios.log_writer import LogWriter
+    from scenarios.flightlog.writer import LogWriter
 
     m = prep.mapping
     imu, gps = prep.imu, prep.gps

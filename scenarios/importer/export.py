@@ -8,7 +8,7 @@ Layout written into ``out_dir``::
                          (increment logs: t_utc_ns, dax, day, daz [rad], dvx, dvy, dvz [m/s], dt [s])
     gps.csv              t_utc_ns, x, y, z [m], vx, vy, vz [m/s] (ECEF), pos_cov_xx .. pos_cov_zz [m^2],
                          vel_cov_xx .. vel_cov_zz [(m/s)^2] (upper triangles), num_satellites
-    camera_<k>.toml      camera file (scenarios/camera_file.py) from the log's CameraInfo
+    camera_<k>.toml      camera file (scenarios/config/camera.py) from the log's CameraInfo
     camera_<k>/          frame_000000.jpg ... (the log's JPEG bytes, unchanged) + timestamps.csv (file, t_utc_ns)
     camera_<k>.mp4       the frames as a video (re-encoded) + camera_<k>_frames.csv (frame, t_utc_ns)
     mapping.toml         imports the tables and the image folders
@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from nav.timescales import format_utc
-from scenarios.camera_file import save_camera
+from scenarios.config.camera import save_camera
 from scenarios.errors import UserError
-from scenarios.log_reader import read_log
+from scenarios.flightlog.reader import read_log
 from vision.camera import from_camera_info
 
 _UT = ("xx", "xy", "xz", "yy", "yz", "zz")

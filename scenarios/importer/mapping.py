@@ -44,7 +44,7 @@ import numpy as np
 
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.timescales import parse_utc
-from scenarios.camera_geometry import mount_rotation
+from scenarios.sim.camera_geometry import mount_rotation
 from scenarios.errors import UserError
 
 from . import units as U
@@ -526,7 +526,7 @@ def parse_footage(ctx: _Ctx, d: Any, where: str, liftoff_ns: int) -> FootageSpec
 
 def parse_mount(ctx: _Ctx, d: Any, where: str) -> np.ndarray:
     """``{ quaternion = [x, y, z, w] }`` (q_bc: camera -> body) or ``{ azimuth_deg, depression_deg,
-    roll_deg }`` (scenarios.camera_geometry.mount_rotation) -> R_bc."""
+    roll_deg }`` (scenarios.sim.camera_geometry.mount_rotation) -> R_bc."""
     d = _table(ctx, d, where, {"quaternion", "azimuth_deg", "depression_deg", "roll_deg"})
     if "quaternion" in d:
         if len(d) != 1:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import re
 
-G0 = 9.80665  # standard gravity [m/s^2] (the same constant as scenarios.scenario.G0)
+G0 = 9.80665  # standard gravity [m/s^2] (the same constant as scenarios.sim.scenario.G0)
 DEG = math.pi / 180.0
 FT = 0.3048
 

@@ -106,7 +106,7 @@ def parse_time(spec: str | None, liftoff_ns: int | None, what: str) -> int | Non
 def read_multi(path, topic: str) -> dict:
     """All messages of a topic that may carry several messages per stamp (``/camera_<k>/vectors``:
     Earth and Sun of one frame; ``/nav/measurements``), decoded with ``mcap_ros2`` in file order.
-    ``scenarios.log_reader`` keeps one message per stamp and topic (see docs/replay.md)."""
+    ``scenarios.flightlog.reader`` keeps one message per stamp and topic (see docs/replay.md)."""
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
     out: dict = {"t_ns": []}
@@ -155,7 +155,7 @@ def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cam
                 need_gps: bool = True) -> ReplayInputs:
     """Read the log at ``path`` (see the module docstring). ``cameras``: camera numbers to use
     (default all); ``t_from``/``t_to``: window (T+ seconds or UTC ISO)."""
-    from scenarios.log_reader import LogWarning, read_log
+    from scenarios.flightlog.reader import LogWarning, read_log
     p = Path(path)
     if not p.is_file():
         raise UserError(f"{p}: log file not found")
@@ -269,7 +269,7 @@ __all__ = ["CameraSetup", "ReplayInputs", "Truth", "load_inputs", "parse_time", 
 def _payload_mask(path, log, k, camera) -> np.ndarray | None:
     """The log's ``/camera_<k>/payload_mask`` (first message, non-zero = payload) as a (H, W) bool
     array, checked against the camera's size; None when absent."""
-    from scenarios.camera_file import payload_mask_from_image
+    from scenarios.config.camera import payload_mask_from_image
     item = log.other.get(f"/camera_{k}/payload_mask")
     if item is None or not len(item[0]):
         return None

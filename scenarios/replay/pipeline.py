@@ -262,8 +262,8 @@ def _small_pages():
 
 def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
     from nav.navigator import run as nav_run
-    from scenarios.log_writer import LogWriter
-    from scenarios.tuning_file import load_tuning
+    from scenarios.flightlog.writer import LogWriter
+    from scenarios.config.tuning import load_tuning
     from scenarios.replay import solution_log as SL
 
     timings: dict = {}
@@ -585,7 +585,7 @@ class _ImagePlan:
 def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
     """The frames in the window (``--vision-rate``) with their GPS position and height priors."""
     from scenarios.replay.vision_worker import FrameJob
-    from scenarios.vision_config import load_vision_config
+    from scenarios.config.vision import load_vision_config
     rows, cams, configs = [], {}, {}
     for k in cam_numbers:
         c = inp.cameras[k]
@@ -615,7 +615,7 @@ def _image_plan(inp, cam_numbers, opt, a, b) -> _ImagePlan:
 def _payload_masks(inp, cam_numbers, files: dict) -> dict:
     """Camera -> `vision.mask.PayloadMask`: ``--mask K=FILE`` where given, else the log's
     ``/camera_<k>/payload_mask``; cameras without either are searched without a mask."""
-    from scenarios.camera_file import read_payload_mask
+    from scenarios.config.camera import read_payload_mask
     from vision import mask as vmask
     unknown = sorted(set(files) - set(cam_numbers))
     if unknown:

@@ -10,7 +10,7 @@ Topics, same message conventions as the input log:
   them its diagonal (what the filter keeps).
 * ``/nav/smoothed``: the RTS smoother at the same epochs (covariance diagonal).
 * ``/nav/ins_unaided``: the free-inertial solution from the same initial state (no covariance: a
-  1x1 NaN, since ``scenarios.log_reader`` cannot reshape an empty one).
+  1x1 NaN, since ``scenarios.flightlog.reader`` cannot reshape an empty one).
 * ``/nav/measurements``: every measurement offered to the filter (``gps/position``,
   ``gps/velocity``, ``camera_<k>/earth``, ``camera_<k>/sun``) with its innovation, predicted
   innovation covariance S, NIS, used or the reason it was rejected; and the TRIAD attitudes

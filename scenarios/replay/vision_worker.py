@@ -2,7 +2,7 @@
 
 Frames are sent to a :class:`concurrent.futures.ProcessPoolExecutor` in chunks of 16 (the frame's
 index in its image stream and its position prior; forked workers read the JPEG bytes from the log
-themselves, see :func:`run_vision`); each worker decodes (:func:`scenarios.jpeg.decode_frame`) and runs
+themselves, see :func:`run_vision`); each worker decodes (:func:`scenarios.flightlog.jpeg.decode_frame`) and runs
 :func:`vision.frontend.process_frame`, and returns the vector records plus a compact overlay for
 the Rerun view (edge candidates, inliers, fitted conic and vector image points in distorted pixel
 space, 003 figs. 15, 27) and the stage timings. With one worker (or one core) the frames are
@@ -98,7 +98,7 @@ def _overlay(camera, res) -> dict:
 
 def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutput:
     """Decode one frame and run the front end on it (in a worker, or here)."""
-    from scenarios.jpeg import decode_frame
+    from scenarios.flightlog.jpeg import decode_frame
     from vision.frontend import FramePrior, process_frame
     camera = camera if camera is not None else _STATE["cameras"][job.k]
     config = config if config is not None else _STATE["config"]
@@ -179,7 +179,7 @@ def run_vision(jobs: list, cameras: dict, config, *, workers: int = 0, masks: di
     order.
 
     ``workers``: 0 = one per core (at most 8), 1 = in this process. ``images``: camera number ->
-    image stream (``stream[index]`` -> JPEG bytes, e.g. :class:`scenarios.log_reader.ImageStream`)
+    image stream (``stream[index]`` -> JPEG bytes, e.g. :class:`scenarios.flightlog.reader.ImageStream`)
     for jobs whose ``jpeg`` is ``None``; forked workers read the frames from it themselves.
     ``chunk_size`` frames go to a worker per task. ``progress(n)`` is called with the number of
     frames finished; ``on_result(outputs)`` with each finished chunk (in order).

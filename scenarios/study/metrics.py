@@ -71,7 +71,7 @@ def run_metrics(res, truth, truth_idx, liftoff_ns: int, window: tuple, psi_c_tru
     Parameters
     ----------
     res : nav.navigator.NavResult
-    truth : scenarios.truth.Truth; ``truth_idx`` the truth index of every IMU sample of ``res``.
+    truth : scenarios.sim.truth.Truth; ``truth_idx`` the truth index of every IMU sample of ``res``.
     window : (t0, t1) mission time [s] the metrics average over.
     psi_c_true : (n_cam, 3) true camera misalignments [rad] (003 eq. (50)).
     smooth : nav.smoother.SmoothResult or None.

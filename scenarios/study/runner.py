@@ -2,7 +2,7 @@
 -> metrics.
 
 Deterministic: the same (scenario, tuning, run config, seed) gives the same numbers bit for bit,
-in any process, in any order. The random streams are those of :mod:`scenarios.simulate` (IMU 1,
+in any process, in any order. The random streams are those of :mod:`scenarios.sim.simulate` (IMU 1,
 GPS 2, camera k 100 + k: one per sensor) plus, here, the vector errors of camera k and target j
 (``VECTOR_STREAM + 10 k + j``), their white part (``WHITE_STREAM + 10 k + j``) and the initial
 error (``INIT_STREAM``).
@@ -39,7 +39,7 @@ import numpy as np
 from nav.ephemeris import sun_position_e
 from nav.navigator import GpsData, ImuData, InitialState, VectorData, run
 from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
-from scenarios import simulate as S
+from scenarios.sim import simulate as S
 from scenarios.study.metrics import run_metrics
 from scenarios.study.studyfile import RunConfig, RunSpec
 from vision.error_model import HORIZON_NOISE, SUN_NOISE, bloomed_alpha, draw_vector_errors, predict_vision
@@ -68,7 +68,7 @@ def _truth_key(sc, t_end: float) -> str:
 
 def cached_truth(sc, t_end: float):
     """The truth of ``sc`` up to ``t_end`` (computed once per process and truth-shaping settings)."""
-    from scenarios.truth import simulate_truth
+    from scenarios.sim.truth import simulate_truth
     key = _truth_key(sc, t_end)
     if key not in _TRUTH:
         if len(_TRUTH) >= 4:
@@ -137,9 +137,9 @@ def white_sigma(rc: RunConfig, tun) -> float:
 
 def simulated_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS, white: float = 0.0) -> VectorData:
     """Vectors from truth plus the vision error model (see the module docstring) for every camera
-    of the run (``cams`` from :func:`scenarios.simulate.simulate_cameras`), plus white noise of
+    of the run (``cams`` from :func:`scenarios.sim.simulate.simulate_cameras`), plus white noise of
     ``white`` per tangent axis (own random stream, so the Gauss-Markov draws do not depend on it)."""
-    from scenarios import camera_geometry as cg
+    from scenarios.sim import camera_geometry as cg
     from nav import ephemeris
     rows_t, rows_c, rows_g, rows_e, rows_P = [], [], [], [], []
     for ci, (cfg, cam) in enumerate(zip(sc.cameras, cams)):
@@ -187,10 +187,10 @@ def simulated_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS
 
 
 def exact_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS, white: float = 0.0) -> VectorData:
-    """Vectors from :func:`scenarios.truth_vectors.flight_truth_vectors` (covariance predicted per
+    """Vectors from :func:`scenarios.sim.truth_vectors.flight_truth_vectors` (covariance predicted per
     run for the true mounting), restricted to the window; ``error_scale`` scales the drawn error
     (``e_true + s (e_meas - e_true)``, renormalised) and ``report_scale`` the reported P."""
-    from scenarios.truth_vectors import flight_truth_vectors
+    from scenarios.sim.truth_vectors import flight_truth_vectors
     fl = S.FlightData(sc, seed, rc.t_end_s, truth, None, None, None, cams)
     tv = flight_truth_vectors(fl, seed, targets=tuple({"hor": "earth", "sun": "sun"}[t] for t in targets if t in TARGETS),
                               sun_bloom=rc.sun_bloom, gm_fraction=rc.gm_fraction, T_c=rc.correlation_time_s,

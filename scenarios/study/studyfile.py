@@ -3,7 +3,7 @@
 A study is a set of *variants* (parameter settings) times ``runs`` Monte Carlo replicates. Every
 parameter is addressed by a dotted name into one of three dataclasses:
 
-* ``scenario.<...>``: :class:`scenarios.scenario.Scenario` (``scenario.cameras.0.rate_hz``,
+* ``scenario.<...>``: :class:`scenarios.sim.scenario.Scenario` (``scenario.cameras.0.rate_hz``,
   ``scenario.imu.gyro_bias_deg_h``, ``scenario.gps.outages_s``), units as in the scenario files;
 * ``tuning.<...>``: :class:`nav.tuning.Tuning` in SI units (``tuning.gyro_bias.sigma`` [rad/s],
   ``tuning.gyro_bias.mode`` = "E" / "C" / "off", ``tuning.vector_white``);
@@ -81,7 +81,7 @@ class RunConfig:
     vector_model : str
         "cached": the predicted covariance of every frame is computed once per scenario variant
         with the nominal camera mounting and re-projected onto each run's true direction (see
-        :mod:`scenarios.study.runner`); "exact": :func:`scenarios.truth_vectors.flight_truth_vectors`
+        :mod:`scenarios.study.runner`); "exact": :func:`scenarios.sim.truth_vectors.flight_truth_vectors`
         per run (the true mounting; ~3 s more per atek coast run).
     init : str
         "perturbed": the truth at ``t_start_s`` minus an error drawn with the ``init_*`` sigmas;
@@ -102,7 +102,7 @@ class RunConfig:
         predicted one (``report_scale = 0.2``: vector noise told to the filter at 1/5 of the truth).
     sun_bloom : float
         Apparent Sun radius multiplier of the visible disc (:func:`vision.error_model.bloomed_alpha`;
-        2 as ``scenarios.truth_vectors.DEFAULT_SUN_BLOOM``).
+        2 as ``scenarios.sim.truth_vectors.DEFAULT_SUN_BLOOM``).
     min_pixels : int
         Shortest visible limb arc [px] that yields a vector (:func:`vision.error_model.predict_vision`).
     smoother : bool
@@ -307,7 +307,7 @@ def apply_params(base: dict, params: dict, where: str = "<study>") -> dict:
 
 def build_variant(study: Study, variant: Variant, base: dict | None = None) -> dict:
     """Scenario, tuning and run config of one variant, validated (fixed settings, then the variant's)."""
-    from scenarios.scenario import _check_consistency
+    from scenarios.sim.scenario import _check_consistency
 
     base = base or load_base(study)
     where = f"{study.path}: variant {variant.label!r}"
@@ -328,8 +328,8 @@ def build_variant(study: Study, variant: Variant, base: dict | None = None) -> d
 
 
 def load_base(study: Study) -> dict:
-    from scenarios.scenario import load_scenario
-    from scenarios.tuning_file import load_tuning
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.config.tuning import load_tuning
 
     try:
         tuning = load_tuning(study.tuning)

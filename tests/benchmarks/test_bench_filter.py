@@ -23,8 +23,8 @@ def _cpu_timed(fn):
 
 
 def test_bench_filter(bench, is_quick):
-    from scenarios.scenario import load_scenario
-    from scenarios.simulate import simulate_flight
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
     logging.disable(logging.WARNING)
     try:
         t_end = 160.0 if is_quick else 430.0

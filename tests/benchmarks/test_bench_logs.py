@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from scenarios.log_reader import read_log
-from scenarios.log_writer import LogWriter
+from scenarios.flightlog.reader import read_log
+from scenarios.flightlog.writer import LogWriter
 from tests.benchmarks.timing import best_of
 
 T0 = 1_560_392_460_000_000_000

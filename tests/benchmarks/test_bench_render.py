@@ -7,7 +7,7 @@ import numba
 import numpy as np
 
 from nav import ephemeris, timescales
-from scenarios import render
+from scenarios.sim import render
 from tests.poses import pose
 from vision.camera import atek_camera
 

@@ -108,7 +108,7 @@ def _decode_reference(rr, n: int = 40) -> float:
     decode is the largest per-frame cost of the vision stage and its code is fixed (libjpeg-turbo),
     so it tells how fast the machine ran: this 2-core machine's speed drifts by 20-40 % between
     runs, more than most changes move the real-time factors."""
-    from scenarios.jpeg import decode_frame
+    from scenarios.flightlog.jpeg import decode_frame
     from scenarios.replay.rerun_view import read_images
     fr = rr.frames[::max(1, len(rr.frames) // n)][:n]
     got = read_images(rr.inputs, fr, rr.cam_numbers)

@@ -2,7 +2,7 @@
 honesty, false vectors, misses, and speed against the JPEG decode of the same frame (004's
 per-stage speed test), with the general conic fit (vision/conic.py) side by side.
 
-Frames: scenarios/render.py at 1 Hz over the coast, T+61..T+430, both cameras, JPEG quality 90
+Frames: scenarios/sim/render.py at 1 Hz over the coast, T+61..T+430, both cameras, JPEG quality 90
 (as the flight log stores them), in two looks: "disturbed" (the default look: atmosphere, clouds,
 Sun with bloom/glare/flare, payload reflections, noise) and "clean" (no clouds and no Sun
 disturbances; atmosphere, payload and noise kept). Rendered frames are cached under
@@ -23,15 +23,15 @@ import cv2
 import numpy as np
 
 from nav import ephemeris
-from scenarios import render
-from scenarios.jpeg import decode_frame
-from scenarios.vision_config import load_vision_config
+from scenarios.sim import render
+from scenarios.flightlog.jpeg import decode_frame
+from scenarios.config.vision import load_vision_config
 from vision import mask as vmask
 from vision.camera import project
 from vision.frontend import FramePrior, process_frame
 from vision.oblate import ellipsoid_limb_rays
 
-CACHE_VERSION = 2   # 2: twilight Sun path with the erf air mass (scenarios/_render_kernel.py)
+CACHE_VERSION = 2   # 2: twilight Sun path with the erf air mass (scenarios/sim/_render_kernel.py)
 LOOKS = {
     "disturbed": render.RenderOptions(),
     "clean": render.RenderOptions(clouds=False, sun_disc=False, sun_bloom=False, sun_glare=False,
@@ -59,8 +59,8 @@ def _cache_dir() -> Path:
 
 
 def _flight():
-    from scenarios.scenario import load_scenario
-    from scenarios.simulate import simulate_flight
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
 
     fl = simulate_flight(load_scenario("atek"), seed=0, duration=431.0, imu_errors=False)
     recs = render.flight_frame_truths(fl)
@@ -124,7 +124,7 @@ def _evaluate(look, times, fl, recs, cfg, mask):
                no_sun=0, miss=0, horizon=0, base_err=[], frames=0)
     rng = np.random.default_rng(0)
     for r, jpg, tr in _frames(look, times, fl, recs):
-        img = decode_frame(jpg)    # the replay's decoder (scenarios/jpeg.py)
+        img = decode_frame(jpg)    # the replay's decoder (scenarios/flightlog/jpeg.py)
         R_ec = _pose(look, r)
         res = process_frame(img, cam, cfg, mask=mask, prior=_full_prior(r, R_ec), rng=rng, baseline=True)
         out["frames"] += 1
@@ -166,7 +166,7 @@ def _speed(bench, fl, recs, cfg, mask, n):
     # a frame with both the horizon and the Sun (camera 2 early in the coast, as in 003 fig. 23)
     best = None
     for r, jpg, tr in _frames("disturbed", range(61, 200, 3), fl, recs):
-        img = decode_frame(jpg)    # the replay's decoder (scenarios/jpeg.py)
+        img = decode_frame(jpg)    # the replay's decoder (scenarios/flightlog/jpeg.py)
         res = process_frame(img, cam, cfg, mask=mask, prior=_full_prior(r, r.R_ec))
         if res.record("earth") is not None and res.record("sun") is not None:
             best = (r, jpg, img)

@@ -27,7 +27,7 @@ message of the channel. The small records (Header, Schema, Channel, Metadata, St
 Footer) are written with the ``mcap`` library's record classes; only Chunk and Message Index records
 are built here, because those are the per-message cost. The layout is the one ``mcap.writer.Writer``
 1.x produces; readers cannot tell the difference (tests/test_log_format.py reads the files with the
-``mcap`` reader (indexed and streamed), ``mcap_ros2``, Rerun and ``scenarios.log_reader``).
+``mcap`` reader (indexed and streamed), ``mcap_ros2``, Rerun and ``scenarios.flightlog.reader``).
 
 Chunking follows ``mcap.writer.Writer``: messages are appended to the open chunk until its size
 exceeds ``chunk_size``; the message that crosses the limit is the last one of the chunk. The open
@@ -47,8 +47,8 @@ from mcap.opcode import Opcode
 from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex, Schema,
                           Statistics, SummaryOffset)
 
-from ._mcap_scan import gather_bytes
-from .logformat import strided_view
+from ._scan import gather_bytes
+from .format import strided_view
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_MESSAGE = 0x05

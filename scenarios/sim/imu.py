@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenarios.scenario import G0, ImuConfig
-from scenarios.truth import Truth
+from scenarios.sim.scenario import G0, ImuConfig
+from scenarios.sim.truth import Truth
 
 DEG_RT_H = np.pi / 180.0 / 60.0  # 1 deg/sqrt(h) in rad/sqrt(s)
 MG = 1e-3 * G0

@@ -1,6 +1,6 @@
 """Write horizon-nav flight logs (MCAP, ROS 2 messages in CDR): bulk numpy in, time-ordered file out.
 
-Format: docs/log-format.md; definitions: ``scenarios.logformat``.
+Format: docs/log-format.md; definitions: ``scenarios.flightlog.format``.
 
 Usage::
 
@@ -19,11 +19,11 @@ The file is written to a temporary file beside ``path`` and renamed on ``close``
 the ``with`` block leaves nothing at ``path`` unless ``partial_on_error=True``, which finalises a
 valid log of what was written so far (metadata ``horizon-nav.status`` has ``complete = "false"``
 and the reason); ``close(complete=False, reason=...)`` does the same explicitly (e.g. on Ctrl-C).
-Message payloads are encoded with the vectorised codec ``scenarios.logformat.Layout`` (checked
+Message payloads are encoded with the vectorised codec ``scenarios.flightlog.format.Layout`` (checked
 byte-for-byte against ``mcap_ros2``'s encoder in tests/test_log_format.py); ``tf2_msgs/TFMessage``
 uses ``mcap_ros2``'s encoder. A batch of N messages of one layout becomes one ``(N, 31 + L)`` byte
 matrix of complete MCAP Message records (``Layout.encode_groups`` with the record header in front);
-batches are merged by ``log_time`` and cut into chunks by ``scenarios._mcap_chunks.ChunkWriter``,
+batches are merged by ``log_time`` and cut into chunks by ``scenarios.flightlog._chunks.ChunkWriter``,
 one compressor call per chunk: no per-message Python work (1 M IMU samples in well under a second
 instead of ~5 s with ``mcap.writer.Writer.add_message``; tests/benchmarks/test_bench_logs.py).
 """
@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 from mcap_ros2._dynamic import serialize_dynamic
 
-from . import logformat as lf
-from ._mcap_chunks import MESSAGE_PREFIX, ChunkWriter, message_header, record_head, set_log_times
+from . import format as lf
+from ._chunks import MESSAGE_PREFIX, ChunkWriter, message_header, record_head, set_log_times
 
 METADATA_NAME = "horizon-nav"
 STATUS_NAME = "horizon-nav.status"

@@ -21,7 +21,7 @@ from vision.frontend import TARGETS, TargetConfig, VisionConfig
 
 __all__ = ["DEFAULT_VISION_FILE", "load_vision_config", "vision_config_from_dict"]
 
-DEFAULT_VISION_FILE = Path(__file__).parent / "library" / "vision" / "default.toml"
+DEFAULT_VISION_FILE = Path(__file__).parent.parent / "library" / "vision" / "default.toml"
 
 _BIN_KEYS = {"threshold": "threshold", "threshold_method": "method", "threshold_factor": "factor",
              "threshold_min": "threshold_min", "threshold_max": "threshold_max",

@@ -34,10 +34,10 @@ def parse_mission_time(text: str) -> float:
 def run(args) -> int:
     import cv2
 
-    from scenarios import render
-    from scenarios.scenario import load_scenario
-    from scenarios.simulate import simulate_cameras
-    from scenarios.truth import simulate_truth
+    from scenarios.sim import render
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_cameras
+    from scenarios.sim.truth import simulate_truth
     from nav import ephemeris
 
     t_s = parse_mission_time(args.time)

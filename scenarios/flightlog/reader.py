@@ -4,9 +4,9 @@
 ``log.imu.gyro``, ...), images on demand, the metadata and the list of topics. Format:
 docs/log-format.md.
 
-Fast path: the file is scanned record by record by a numba kernel (``scenarios._mcap_scan``), chunks
+Fast path: the file is scanned record by record by a numba kernel (``scenarios.flightlog._scan``), chunks
 are decompressed one at a time, the payloads of each channel are gathered into a byte matrix and
-decoded column-wise with the vectorised CDR codec ``scenarios.logformat.Layout``. Any ROS 2 schema
+decoded column-wise with the vectorised CDR codec ``scenarios.flightlog.format.Layout``. Any ROS 2 schema
 without nested-message sequences takes this path (for foreign schemas of the same name the fields are
 decoded as the schema says); ``tf2_msgs/TFMessage`` and other schemas go through the reference
 decoder of ``mcap_ros2`` (``log.tf_static``, ``log.other``).
@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import logformat as lf
-from ._mcap_scan import OP_MESSAGE, MESSAGE_HEADER, gather_rows, scan_records
-from .errors import UserError
+from . import format as lf
+from ._scan import OP_MESSAGE, MESSAGE_HEADER, gather_rows, scan_records
+from ..errors import UserError
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_CHUNK, OP_METADATA, OP_DATA_END = 1, 2, 3, 4, 6, 12, 15

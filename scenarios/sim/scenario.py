@@ -15,7 +15,7 @@ Body frame (CONVENTIONS "Frames"): x_b along the roll axis towards the nose; at 
 horizontal, pointing to the right of the launch azimuth (``y_b = unit(down x x_b)``; east for a launch
 to the north), and ``z_b = x_b x y_b`` (for a near-vertical launch: horizontal, towards the launch
 azimuth). ``launch.roll_deg`` rotates y_b and z_b about x_b. The cameras are placed by their azimuth
-about x_b, measured from +y_b towards +z_b (see :mod:`scenarios.camera_geometry`).
+about x_b, measured from +y_b towards +z_b (see :mod:`scenarios.sim.camera_geometry`).
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from typing import Any
 
 from scenarios.errors import UserError
 
-LIBRARY_DIR = Path(__file__).resolve().parent / "library"
+LIBRARY_DIR = Path(__file__).resolve().parent.parent / "library"
 G0 = 9.80665  # standard gravity [m/s^2], for the mg and Isp units
 
 
@@ -411,7 +411,7 @@ def resolve_camera_path(intrinsics: str, where: str = "", key: str = "intrinsics
 
 def load_camera_for(cam: CameraConfig, source: str = ""):
     """The :class:`vision.camera.FisheyeCamera` of a camera config."""
-    from scenarios.camera_file import load_camera
+    from scenarios.config.camera import load_camera
     from vision.camera import from_fov
 
     if cam.fov_deg > 0:

@@ -3,7 +3,7 @@
 Random numbers: one :class:`numpy.random.SeedSequence` per run, and one independent stream per
 sensor, keyed by a fixed spawn key (IMU 1, GPS 2, camera k: 100 + k). Changing one sensor's
 configuration (e.g. the GPS rate) therefore leaves every other sensor's draws unchanged.
-Images are not rendered here: :func:`scenarios.render.render_flight_images` renders them from the
+Images are not rendered here: :func:`scenarios.sim.render.render_flight_images` renders them from the
 returned flight as a stream, which ``horizon-nav simulate`` writes straight into the log.
 """
 from __future__ import annotations
@@ -13,11 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav import ephemeris
-from scenarios import camera_geometry as cg
-from scenarios.gps_model import GpsFixes, simulate_gps
-from scenarios.imu_model import ImuErrors, ImuSamples, simulate_imu
-from scenarios.scenario import Scenario, load_camera_for
-from scenarios.truth import Truth, simulate_truth
+from scenarios.sim import camera_geometry as cg
+from scenarios.sim.gps import GpsFixes, simulate_gps
+from scenarios.sim.imu import ImuErrors, ImuSamples, simulate_imu
+from scenarios.sim.scenario import Scenario, load_camera_for
+from scenarios.sim.truth import Truth, simulate_truth
 
 STREAM_IMU, STREAM_GPS, STREAM_CAMERA = 1, 2, 100
 

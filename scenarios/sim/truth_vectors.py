@@ -71,7 +71,7 @@ class TruthVectors:
         return int(self.t_ns.size)
 
     def write(self, writer) -> None:
-        """Write ``/camera_<k>/vectors`` for every camera (``scenarios.log_writer.LogWriter``)."""
+        """Write ``/camera_<k>/vectors`` for every camera (``scenarios.flightlog.writer.LogWriter``)."""
         for k in np.unique(self.camera):
             m = self.camera == k
             writer.write_vectors(int(k), self.t_ns[m], list(self.target[m]), self.e_c[m], self.P_c[m],
@@ -178,7 +178,7 @@ def _merge(parts) -> TruthVectors:
 
 
 def flight_truth_vectors(flight, seed: int | None = None, **kw) -> TruthVectors:
-    """Vectors of every camera of a simulated flight (``scenarios.simulate.FlightData``); ``seed``
+    """Vectors of every camera of a simulated flight (``scenarios.sim.simulate.FlightData``); ``seed``
     defaults to the flight's. Keywords as :func:`camera_truth_vectors`."""
     from nav.ephemeris import sun_position_e
     seed = flight.seed if seed is None else seed

@@ -251,7 +251,7 @@ def run(args) -> int:
         raise UserError(f"-o {out}: cannot create the output directory ({exc.strerror})") from None
     camera = None
     if args.camera:
-        from scenarios.camera_file import load_camera
+        from scenarios.config.camera import load_camera
 
         camera = load_camera(args.camera)
     if args.analysis != "sensitivity" and (args.param or args.form != "auto"):

@@ -9,8 +9,8 @@ import numpy as np
 from nav import earth
 from nav.rotation import quat_to_matrix
 from scenarios.errors import UserError
-from scenarios.scenario import G0, load_scenario
-from scenarios.truth import Truth, simulate_truth
+from scenarios.sim.scenario import G0, load_scenario
+from scenarios.sim.truth import Truth, simulate_truth
 
 NAME = "plot-truth"
 HELP = "plot the simulated truth of a scenario (height, speed, attitude, body rates, specific force) to a PNG"

@@ -6,7 +6,7 @@ Model (all in e, CONVENTIONS "Frames"; the navigation frame of 003 §6):
   gravitation plus centrifugal acceleration (:func:`nav.earth.gravity_e`) and the specific force
   ``f_b = (thrust x_b + drag + RCS force) / m`` (what an accelerometer at the centre of mass measures);
 * drag: point-mass drag ``-1/2 rho |v| v CdA`` against the e-frame velocity (the atmosphere rotates
-  with the Earth, no wind), rho from the U.S. Standard Atmosphere 1976 (:mod:`scenarios.atmosphere`);
+  with the Earth, no wind), rho from the U.S. Standard Atmosphere 1976 (:mod:`scenarios.sim.atmosphere`);
 * thrust: trapezoidal profile per stage with total impulse = propellant * Isp * g0; the mass falls with
   the burnt propellant and drops at each separation (first stage, nose cone, motor; 003 table 2);
 * rotation: ``I domega_ib/dt = tau - omega_ib x I omega_ib`` (Euler's equations, body frame, full
@@ -24,9 +24,9 @@ Model (all in e, CONVENTIONS "Frames"; the navigation frame of 003 §6):
 * attitude: ``dq_eb/dt = 1/2 q_eb (x) [omega_eb_b, 0]``, ``omega_eb_b = omega_ib_b - R_be Omega_ie``.
 
 Integration: classical RK4 with a fixed step (``1 / (truth_rate_hz * substeps)``, 2 kHz by default),
-quaternion renormalised after each step, in a numba kernel (:mod:`scenarios._truth_kernel`). The state
+quaternion renormalised after each step, in a numba kernel (:mod:`scenarios.sim._truth_kernel`). The state
 also integrates ``omega_ib_b`` and ``f_b`` so that interval-averaged IMU samples and increments are
-exact integrals of the truth (:mod:`scenarios.imu_model`). With a 0.5 ms step the RK4 error of the
+exact integrals of the truth (:mod:`scenarios.sim.imu`). With a 0.5 ms step the RK4 error of the
 spinning ascent (omega dt = 0.011 rad) is about (omega dt)^5 / 120 per step: < 1e-6 rad over 60 s.
 """
 from __future__ import annotations
@@ -37,9 +37,9 @@ import numpy as np
 
 from nav import earth, timescales
 from nav.rotation import matrix_to_quat
-from scenarios import _truth_kernel as kern
-from scenarios import atmosphere
-from scenarios.scenario import G0, Scenario
+from scenarios.sim import _truth_kernel as kern
+from scenarios.sim import atmosphere
+from scenarios.sim.scenario import G0, Scenario
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """The ``horizon-nav`` command line.
 
-Each subcommand is a module in :mod:`scenarios.commands` that defines ``NAME``, ``HELP``,
+Each subcommand is a module in :mod:`scenarios.cli` that defines ``NAME``, ``HELP``,
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules are discovered, so a new capability
 adds a file and touches nothing here. Errors that users can fix (:class:`UserError`, ``ValueError``
 from input checks, missing files) are printed as one line without a traceback.
@@ -12,7 +12,7 @@ import importlib
 import pkgutil
 import sys
 
-from scenarios import commands
+from scenarios import cli as commands
 from scenarios.errors import UserError
 
 
@@ -36,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
-        module = importlib.import_module(f"scenarios.commands.{info.name}")
+        module = importlib.import_module(f"scenarios.cli.{info.name}")
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)

@@ -1,7 +1,7 @@
 """``horizon-nav scenarios``: list the built-in scenario library with a one-line description each."""
 from __future__ import annotations
 
-from scenarios.scenario import library
+from scenarios.sim.scenario import library
 
 NAME = "scenarios"
 HELP = "list the built-in flight scenarios (scenarios/library/*.toml)"

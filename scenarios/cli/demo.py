@@ -26,8 +26,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from scenarios.commands import replay as replay_cmd
-    from scenarios.commands import simulate as sim_cmd
+    from scenarios.cli import replay as replay_cmd
+    from scenarios.cli import simulate as sim_cmd
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     log = out / "atek.mcap"

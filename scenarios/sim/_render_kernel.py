@@ -1,5 +1,5 @@
 """Per-pixel shading kernels of the synthetic camera (numba); the physics is documented in
-:mod:`scenarios.render`, which is the only caller.
+:mod:`scenarios.sim.render`, which is the only caller.
 
 One pixel: rotate its camera-frame ray into e (float64), intersect it with the WGS-84 ellipsoid in
 the scaled-sphere form, shade the Earth (surface + clouds + airlight) or the atmosphere limb (by

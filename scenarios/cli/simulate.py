@@ -4,7 +4,7 @@ Writes (docs/log-format.md): IMU (``/imu`` rates or ``/imu_increment``), GPS fix
 truth (``/truth/state`` at the IMU rate), per camera ``camera_info``, the ``/tf_static`` mounts
 (the *nominal* mounts: the true misalignment is in ``/camera_<k>/truth``) and the per-frame camera
 truth, with the scenario TOML, seed and software version as MCAP metadata. The file is written to a
-temporary file and renamed when complete (``scenarios.log_writer.LogWriter``).
+temporary file and renamed when complete (``scenarios.flightlog.writer.LogWriter``).
 """
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from nav.rotation import matrix_to_quat
-from scenarios import simulate as sim
+from scenarios.sim import simulate as sim
 from scenarios.errors import UserError
-from scenarios.scenario import load_scenario
+from scenarios.sim.scenario import load_scenario
 from vision.camera import to_opencv
 
 NAME = "simulate"
@@ -33,7 +33,7 @@ def add_arguments(p) -> None:
     p.add_argument("--truth-rate", type=float, default=None,
                    help="rate of /truth/state [Hz] (default: the IMU rate); must divide the truth rate")
     p.add_argument("--vectors", action="store_true",
-                   help="also write /camera_<k>/vectors: truth plus the vision error model (scenarios/truth_vectors.py)")
+                   help="also write /camera_<k>/vectors: truth plus the vision error model (scenarios/sim/truth_vectors.py)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -42,11 +42,11 @@ def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = 
     """Write a simulated flight as a horizon-nav MCAP log (atomic: temp file, then rename).
 
     ``images``: optional iterable of ``(camera k, t_ns, jpeg bytes)`` (e.g.
-    :func:`scenarios.render.render_flight_images`), consumed as a stream. ``vectors``: optional
-    :class:`scenarios.truth_vectors.TruthVectors` written to ``/camera_<k>/vectors``. ``masks``:
+    :func:`scenarios.sim.render.render_flight_images`), consumed as a stream. ``vectors``: optional
+    :class:`scenarios.sim.truth_vectors.TruthVectors` written to ``/camera_<k>/vectors``. ``masks``:
     optional ``{k: (H, W) bool}`` payload masks written to ``/camera_<k>/payload_mask``.
     """
-    from scenarios.log_writer import LogWriter
+    from scenarios.flightlog.writer import LogWriter
 
     sc = flight.scenario
     tr = flight.truth
@@ -118,14 +118,14 @@ def run(args) -> int:
                                      progress=lambda f, label: progress(0.85 * f, label))
         images = masks = None
         if args.images:
-            from scenarios.render import RenderOptions, payload_mask, render_flight_images
+            from scenarios.sim.render import RenderOptions, payload_mask, render_flight_images
             opts = RenderOptions() if args.jpeg_quality is None else RenderOptions(jpeg_quality=args.jpeg_quality)
             images = render_flight_images(flight, options=opts, progress=not args.quiet)
             if opts.payload_mask is not None:   # what the renderer draws the payload into
                 masks = {c.k: payload_mask(c.camera, opts.payload_mask) for c in flight.cameras}
         vectors = None
         if args.vectors:
-            from scenarios.truth_vectors import flight_truth_vectors
+            from scenarios.sim.truth_vectors import flight_truth_vectors
             progress(0.86, "vectors")
             vectors = flight_truth_vectors(flight)
         write_log(flight, out, args.truth_rate, progress, images=images, vectors=vectors, masks=masks)
@@ -133,7 +133,7 @@ def run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
-    from scenarios.truth import summary
+    from scenarios.sim.truth import summary
     s = summary(flight.truth)
     print(f"{out}: {sc.name}, seed {args.seed}, {flight.duration:.0f} s; apogee {s['apogee_m'] / 1e3:.1f} km at "
           f"T+{s['apogee_t_s']:.0f} s; {len(flight.imu.t)} IMU samples, {len(flight.gps.t)} GPS fixes, "

@@ -7,7 +7,7 @@ attitude ``R_ec`` from the truth position ``x_e``:
 * **Earth**: the WGS-84 ellipsoid, hit in the scaled-sphere form ``|o' + t d'| = 1`` with
   ``o' = diag(1/a, 1/a, 1/b) x_e``, ``d'`` likewise (exact: a pixel is "Earth" iff its centre ray
   hits the ellipsoid, the ellipsoidal version of the Earth cone of 003 eq. (4)). Reflectance from a
-  procedural cube map (:mod:`scenarios.clouds`: ocean, land, snow, clouds; deterministic from the
+  procedural cube map (:mod:`scenarios.sim.clouds`: ocean, land, snow, clouds; deterministic from the
   seed and fixed in e), Lambertian illumination ``max(n . s, 0)`` by the Sun with the geodetic normal
   ``n`` (the day/night terminator).
 * **Atmosphere**: single scattering in an exponential atmosphere with scale height ``H`` and
@@ -55,8 +55,8 @@ import numpy as np
 
 from nav import earth
 from nav.rotation import rotvec_to_matrix
-from scenarios import _render_kernel as K
-from scenarios import clouds
+from scenarios.sim import _render_kernel as K
+from scenarios.sim import clouds
 from vision.camera import FisheyeCamera, pixel_rays, project
 
 __all__ = [
@@ -881,7 +881,7 @@ def _frame_seed(seed: int, k: int, t_ns: int) -> int:
 
 
 def flight_frame_truths(flight: Any) -> list[FrameTruth]:
-    """Per-frame truth records of a simulated flight (:class:`scenarios.simulate.FlightData`),
+    """Per-frame truth records of a simulated flight (:class:`scenarios.sim.simulate.FlightData`),
     camera by camera: ``camera_index`` is the position in ``flight.cameras``, ``t_ns`` the true
     capture time (UTC), ``R_ec = R_eb R_bc`` with the true mount, ``omega_c = R_bc^T omega_ib_b``."""
     from nav.rotation import quat_to_matrix
@@ -903,7 +903,7 @@ def flight_frame_truths(flight: Any) -> list[FrameTruth]:
 def render_flight_images(flight: Any, *, options: RenderOptions | None = None,
                          progress: bool = True) -> Iterator[tuple[int, int, bytes]]:
     """Render every camera frame of a simulated flight for the log: yields ``(k, stamp_ns, jpeg)``
-    with ``k`` the camera number of :class:`scenarios.simulate.CameraRun` (1-based) and the stamp
+    with ``k`` the camera number of :class:`scenarios.sim.simulate.CameraRun` (1-based) and the stamp
     on the camera's own clock (true time + ``clock_offset_s``), frames in time order per camera.
     The weather (cloud seed) is the flight's seed."""
     recs = flight_frame_truths(flight)

@@ -6,7 +6,7 @@ from pathlib import Path
 from nav.tuning import Tuning, tuning_from_toml
 
 #: The default tuning: 003 table 3.
-DEFAULT_TUNING_FILE = Path(__file__).parent / "library" / "tuning" / "table3.toml"
+DEFAULT_TUNING_FILE = Path(__file__).parent.parent / "library" / "tuning" / "table3.toml"
 
 
 def load_tuning(path: str | Path | None = None) -> Tuning:

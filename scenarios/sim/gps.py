@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenarios.scenario import GpsConfig
-from scenarios.truth import Truth
+from scenarios.sim.scenario import GpsConfig
+from scenarios.sim.truth import Truth
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Numba hot loop of the 6-DOF truth: fixed-step RK4 of the rigid-body equations in e.
 
-Only the loop lives here; the model is assembled in :mod:`scenarios.truth` (which documents it).
+Only the loop lives here; the model is assembled in :mod:`scenarios.sim.truth` (which documents it).
 State ``y`` (19): x_e (3) [m], v_e (3) [m/s], q_eb (4, scalar-last), omega_ib_b (3) [rad/s],
 integral of omega_ib_b dt (3) [rad], integral of the specific force f_b dt (3) [m/s].
 

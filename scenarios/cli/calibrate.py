@@ -1,5 +1,5 @@
 """``horizon-nav calibrate``: fisheye intrinsics from chessboard images (``cv2.fisheye.calibrate``)
-written as a camera file (scenarios/camera_file.py).
+written as a camera file (scenarios/config/camera.py).
 
 The OpenCV fisheye model theta_d = theta (1 + d1 theta^2 + ... + d4 theta^8) is 003 eq. (13)
 with k = [1, d1, .., d4] (`vision.camera.from_opencv`). Corners: ``cv2.findChessboardCorners``
@@ -109,7 +109,7 @@ def calibrate_images(images: dict, board: tuple[int, int], square: float, name: 
 def run(args) -> int:
     import cv2
 
-    from scenarios.camera_file import save_camera
+    from scenarios.config.camera import save_camera
 
     board = parse_board(args.board)
     imgs = {}

@@ -44,9 +44,9 @@ def _record_dict(r) -> dict:
 def run(args) -> int:
     import cv2
 
-    from scenarios.camera_file import load_camera, read_payload_mask
-    from scenarios.jpeg import decode_frame
-    from scenarios.vision_config import load_vision_config
+    from scenarios.config.camera import load_camera, read_payload_mask
+    from scenarios.flightlog.jpeg import decode_frame
+    from scenarios.config.vision import load_vision_config
     from vision import mask as vmask
     from vision.frontend import FramePrior, process_frame
 

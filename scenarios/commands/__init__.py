@@ -1,1 +1,0 @@
-"""Subcommands of ``horizon-nav``: one module each, discovered by :mod:`scenarios.cli`."""
