@@ -4,10 +4,11 @@ Figures:
 
 * ``import.rows_per_s`` -- parse + convert (``tables.read_imu``: pyarrow CSV parse of the 7 mapped
   columns, integer-ns time, deg/s -> rad/s and g -> m/s^2, a signed-permutation axis map), best of
-  3. Target (issue 9): >= 500,000 rows/s. Baseline timed in the same run: the plain ``csv`` module
-  parsing the first 100,000 rows into floats (rows/s); ratio = rows_per_s / baseline.
+  3. Target: >= 500,000 rows/s. Baseline timed in the same run: the plain ``csv`` module parsing
+  the first 100,000 rows into floats (rows/s).
 * ``import.parse_time_over_read_bytes`` -- the parse + convert time over ``Path.read_bytes()`` of
-  the same file (the floor any reader pays).
+  the same file (the floor any reader pays); the value is itself that ratio, so its baseline is
+  parity, 1.0.
 * ``import.end_to_end_rows_per_s`` -- ``import_flight`` of the same file into an MCAP log (read,
   validate, write). The log writer dominates it (mcap's ``add_message`` costs a few us per
   message), so it is reported separately and has no target here.
@@ -81,10 +82,13 @@ axes = ["+z", "+x", "+y"]
     print(f"\nIMU CSV: {n} rows, {mb:.0f} MB; parse+convert {t_parse:.3f} s ({rate:,.0f} rows/s); read_bytes "
           f"{t_raw:.3f} s; csv module {csv_rate:,.0f} rows/s; end-to-end import {t_e2e:.2f} s "
           f"({n / t_e2e:,.0f} rows/s; write {res.timings['write_s']:.2f} s, read {res.timings['imu_read_s']:.2f} s)")
-    bench("import.rows_per_s", rate, "rows/s", baseline=csv_rate, ratio=rate / csv_rate, rows=n, file_mb=mb,
-          notes="parse+convert (tables.read_imu, pyarrow.csv); baseline = plain csv module on 100k rows (rows/s)")
-    bench("import.parse_time_over_read_bytes", t_parse / t_raw, "ratio", baseline=t_raw, ratio=t_parse / t_raw,
-          rows=n, notes="baseline = Path.read_bytes() of the same file [s]")
-    bench("import.end_to_end_rows_per_s", n / t_e2e, "rows/s", baseline=rate, ratio=(n / t_e2e) / rate, rows=n,
+    bench("import.rows_per_s", rate, "rows/s", baseline=csv_rate, rows=n, file_mb=mb,
+          baseline_name="plain csv module on the first 100k rows of the same file, same run", target=500_000.0,
+          notes="parse+convert (tables.read_imu, pyarrow.csv)")
+    bench("import.parse_time_over_read_bytes", t_parse / t_raw, "ratio", baseline=1.0,
+          baseline_name="parity with Path.read_bytes() of the same file, same run (value = parse time / read time)",
+          rows=n, parse_s=t_parse, read_bytes_s=t_raw)
+    bench("import.end_to_end_rows_per_s", n / t_e2e, "rows/s", baseline=rate,
+          baseline_name="parse+convert alone (import.rows_per_s), same run", rows=n,
           write_s=res.timings["write_s"],
-          notes="import_flight into MCAP (LogWriter dominates); baseline = parse+convert rows/s")
+          notes="import_flight into MCAP (LogWriter dominates)")
