@@ -93,17 +93,23 @@ class SearchConfig:
     line_offset_px : row of the first line; None centres the raster (first row = spacing / 2).
     max_points : limit on the number of followed border pixels (all borders); beyond it the search
         stops and reports an overflow (a frame of noise, not a horizon).
+    alpha_min_deg : smallest apparent radius [deg] of the body the lines are spaced for: when
+        ``line_spacing_px`` is None, `vision.config.resolve_search_lines` sets it to
+        ``2 f tan(alpha_min)`` with the camera's focal length f (003 §5). None: no such spacing.
     """
 
     line_spacing_px: float | None = None
     line_offset_px: float | None = None
     max_points: int = 2_000_000
+    alpha_min_deg: float | None = None
 
     def __post_init__(self):
         if self.line_spacing_px is not None and not (self.line_spacing_px >= 1.0):
             raise ValueError(f"SearchConfig.line_spacing_px: {self.line_spacing_px}, expected >= 1 px or None")
         if self.max_points < 1:
             raise ValueError(f"SearchConfig.max_points: {self.max_points}, expected >= 1")
+        if self.alpha_min_deg is not None and not 0.0 < self.alpha_min_deg < 90.0:
+            raise ValueError(f"SearchConfig.alpha_min_deg: {self.alpha_min_deg}, expected 0 < alpha < 90 deg or None")
 
 
 def search_line_spacing(focal_px: float, alpha: float, scale: float = 1.0) -> float:

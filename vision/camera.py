@@ -44,6 +44,8 @@ from typing import Any, Mapping, Sequence
 import numba
 import numpy as np
 
+from vision._kernels import poly1, project1
+
 __all__ = [
     "FisheyeCamera",
     "MODEL_NAME",
@@ -307,17 +309,6 @@ def _inverse_radial_reference(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndar
 
 
 @numba.njit(cache=True, nogil=True)
-def _poly1(k, t):  # pragma: no cover - numba
-    """r_d(theta) for one theta, the Horner scheme of `_poly` (same arithmetic)."""
-    t2 = t * t
-    n = k.shape[0]
-    acc = k[n - 1]
-    for i in range(n - 2, -1, -1):
-        acc = acc * t2 + k[i]
-    return acc * t
-
-
-@numba.njit(cache=True, nogil=True)
 def _dpoly1(k, t):  # pragma: no cover - numba
     """dr_d/dtheta for one theta, the Horner scheme of `_dpoly`."""
     t2 = t * t
@@ -361,7 +352,7 @@ def _inverse_radial_kernel(r, k, inv_dr, th_tab, sl_tab, max_radius):  # pragma:
         lo -= 1e-14
         hi += 1e-14
         for _ in range(100):
-            f = _poly1(k, theta) - ri
+            f = poly1(k, theta) - ri
             df = _dpoly1(k, theta)
             if f < 0.0:
                 lo = max(lo, theta)
@@ -435,17 +426,7 @@ def _project_kernel(p, fx, fy, cx, cy, k, max_theta):  # pragma: no cover - numb
     n = p.shape[0]
     uv = np.empty((n, 2))
     for i in range(n):
-        x, y, z = p[i, 0], p[i, 1], p[i, 2]
-        rho = math.hypot(x, y)
-        theta = math.atan2(rho, z)
-        if theta > max_theta or (rho == 0.0 and z <= 0.0):
-            uv[i, 0] = math.nan
-            uv[i, 1] = math.nan
-            continue
-        r_d = _poly1(k, theta)
-        scale = r_d / rho if rho > 0.0 else 0.0
-        uv[i, 0] = cx + fx * scale * x
-        uv[i, 1] = cy + fy * scale * y
+        uv[i, 0], uv[i, 1] = project1(p[i, 0], p[i, 1], p[i, 2], fx, fy, cx, cy, k, max_theta)
     return uv
 
 

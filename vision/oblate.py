@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from nav import earth
-from vision.nadir import _norm3, horizon_alpha
+from vision.nadir import norm3, horizon_alpha
 
 __all__ = ["LimbModel", "sphere_model", "ellipsoid_model", "gaussian_radius", "ellipsoid_limb_rays"]
 
@@ -72,7 +72,7 @@ class LimbModel:
         if self.kind == "sphere":
             return e_fit
         e = self.M_inv @ e_fit
-        return e / _norm3(e)
+        return e / norm3(e)
 
     def cone_angle_change(self, dd) -> np.ndarray:
         """``alpha(d + dd) - alpha(d)`` [rad]: how much wider the cone of a limb ``dd`` [m] higher
