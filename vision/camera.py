@@ -245,7 +245,7 @@ def _rtable(camera: FisheyeCamera) -> tuple[float, np.ndarray, np.ndarray]:
     tab = _RTABLES.get(key)
     if tab is None:
         r = np.linspace(0.0, camera.max_radius, _TABLE_SIZE)
-        th = _inverse_radial_reference(camera, r)
+        th = _inverse_radial_bracketed(camera, r)
         th[-1] = camera.max_theta
         th = np.maximum.accumulate(th)
         d = _dpoly(np.asarray(camera.k), th)
@@ -272,9 +272,10 @@ def inverse_radial(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
     return out.reshape(r_in.shape)
 
 
-def _inverse_radial_reference(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
-    """The same inverse with all elements iterated together in numpy (the reference the kernel is
-    tested against, tests/test_camera.py)."""
+def _inverse_radial_bracketed(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
+    """The same inverse with all elements iterated together in numpy: Newton steps inside a
+    bisection bracket from the coarse table's interpolation, to 1e-13 rad (`_rtable` builds the
+    kernels' table with it; tests/test_camera.py checks the kernel against it)."""
     r_in = np.asarray(r_d, dtype=float)
     r = r_in.ravel()
     k = np.asarray(camera.k)
@@ -448,23 +449,6 @@ def project(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
     return uv.reshape(p.shape[:-1] + (2,))
 
 
-def _project_reference(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
-    """`project` in numpy (the reference the kernel is tested against)."""
-    p = np.asarray(rays_c, dtype=float)
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    rho = np.hypot(x, y)
-    theta = np.arctan2(rho, z)
-    r_d = _poly(np.asarray(camera.k), theta)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(rho > 0.0, r_d / rho, 0.0)
-    u = camera.cx + camera.fx * scale * x
-    v = camera.cy + camera.fy * scale * y
-    bad = (theta > camera.max_theta) | ((rho == 0.0) & (z <= 0.0))
-    uv = np.stack([u, v], axis=-1)
-    uv[bad] = np.nan
-    return uv
-
-
 def _pixels(uv: np.ndarray) -> np.ndarray:
     uv = np.asarray(uv, dtype=float)
     if uv.shape[-1] != 2:
@@ -495,17 +479,6 @@ def unproject(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
     ray = [sin(theta) q / r_d, cos(theta)] (one numba pass, `_unproject_kernel`).
     """
     return _unproject(camera, uv, False)[0]
-
-
-def _unproject_reference(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
-    """`unproject` in numpy with `_inverse_radial_reference` (the reference for the tests)."""
-    xd, yd = _normalised(camera, uv)
-    r_d = np.hypot(xd, yd)
-    theta = _inverse_radial_reference(camera, r_d)
-    st = np.sin(theta)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(r_d > 0.0, st / r_d, 0.0)
-    return np.stack([s * xd, s * yd, np.cos(theta)], axis=-1)
 
 
 def unproject_jacobian(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
