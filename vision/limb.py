@@ -891,66 +891,83 @@ def _flank_kernel(c, dh, mu, phase, A, H, C, R, gamma, clip, keep, min_samples, 
     for i in range(m):
         out_h[i] = np.nan
         out_rms[i] = np.nan
-        n = 0
-        top = -1.0
-        run = -1.0
-        inside = True
-        for k in range(S):
-            ck = c[i, k]
-            if ck < 0.0 or not math.isfinite(dh[i, k]):
-                inside = False               # outside the image
-                break
-            if ck >= clip:
-                break
-            if ck > run:
-                run = ck
-            elif run >= min_top and (ck / 255.0) ** gamma < keep * (run / 255.0) ** gamma:
-                break                        # the ground side (a drop in the faint tail is noise)
-            if ck < _FLANK_MIN_LEVEL:
-                continue
-            L[n] = (ck / 255.0) ** gamma
-            w[n] = 1.0 / max(ck, _FLANK_WEIGHT_FLOOR) ** ex
-            d[n] = dh[i, k]
-            u[n] = mu[i, k]
-            ph[n] = phase[i, k]
-            n += 1
-            top = max(top, ck)
+        n, top, inside = _flank_samples(c[i], dh[i], mu[i], phase[i], gamma, clip, keep, min_top, ex,
+                                        L, w, d, u, ph)
         if not inside or n < min_samples or top < min_top:
             continue
         _flank_terms(d, u, n, A, H, C, R, E, Q, hmin)
-        sw = sl = sll = 0.0
-        for k in range(n):
-            sw += w[k]
-            sl += w[k] * L[k]
-            sll += w[k] * L[k] * L[k]
-        best, hb = np.inf, np.nan
-        h = 6e3
-        while h <= 100e3:
-            f = _flank_residual(h, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-            if f < best:
-                best, hb = f, h
-            h += _FLANK_GRID
-        if not math.isfinite(hb):
-            continue
-        gr = 0.6180339887498949
-        lo, hi = hb - _FLANK_GRID, hb + _FLANK_GRID
-        x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-        f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-        f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-        for _ in range(20):
-            if f1 < f2:
-                hi, x2, f2 = x2, x1, f1
-                x1 = hi - gr * (hi - lo)
-                f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-            else:
-                lo, x1, f1 = x1, x2, f2
-                x2 = lo + gr * (hi - lo)
-                f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-        h0 = 0.5 * (lo + hi)
-        f, K, b = _flank_residual(h0, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)
+        h0, f, K = _flank_search(L, w, E, Q, hmin, ph, n, A, H)
         if K > 0.0:
             out_h[i] = h0
             out_rms[i] = math.sqrt(f / n)
+
+
+@numba.njit(cache=True)
+def _flank_samples(c, dh, mu, phase, gamma, clip, keep, min_top, ex, L, w, d, u, ph):
+    """The fitted samples of one profile of `_flank_kernel` into L (linearised), w (weights), d,
+    u, ph (height offsets, Sun cosines, phase factors). Returns (count, brightest sample, inside
+    the image)."""
+    n = 0
+    top = -1.0
+    run = -1.0
+    for k in range(c.shape[0]):
+        ck = c[k]
+        if ck < 0.0 or not math.isfinite(dh[k]):
+            return n, top, False             # outside the image
+        if ck >= clip:
+            break
+        if ck > run:
+            run = ck
+        elif run >= min_top and (ck / 255.0) ** gamma < keep * (run / 255.0) ** gamma:
+            break                            # the ground side (a drop in the faint tail is noise)
+        if ck < _FLANK_MIN_LEVEL:
+            continue
+        L[n] = (ck / 255.0) ** gamma
+        w[n] = 1.0 / max(ck, _FLANK_WEIGHT_FLOOR) ** ex
+        d[n] = dh[k]
+        u[n] = mu[k]
+        ph[n] = phase[k]
+        n += 1
+        top = max(top, ck)
+    return n, top, True
+
+
+@numba.njit(cache=True)
+def _flank_search(L, w, E, Q, hmin, ph, n, A, H):
+    """Height h0 [m] of the best fit of `_flank_residual` over n samples: the `_FLANK_GRID` grid
+    over 6..100 km, then a golden-section search around the best node. Returns (h0, residual, K);
+    (NaN, NaN, NaN) when no node gives a finite residual."""
+    sw = sl = sll = 0.0
+    for k in range(n):
+        sw += w[k]
+        sl += w[k] * L[k]
+        sll += w[k] * L[k] * L[k]
+    best, hb = np.inf, np.nan
+    h = 6e3
+    while h <= 100e3:
+        f = _flank_residual(h, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+        if f < best:
+            best, hb = f, h
+        h += _FLANK_GRID
+    if not math.isfinite(hb):
+        return np.nan, np.nan, np.nan
+    gr = 0.6180339887498949
+    lo, hi = hb - _FLANK_GRID, hb + _FLANK_GRID
+    x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
+    f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+    f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+    for _ in range(20):
+        if f1 < f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - gr * (hi - lo)
+            f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + gr * (hi - lo)
+            f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+    h0 = 0.5 * (lo + hi)
+    f, K, _ = _flank_residual(h0, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)
+    return h0, f, K
 
 
 def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray,
