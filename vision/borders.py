@@ -300,7 +300,7 @@ def _follow_steps(img, tsum, pen, state, v0, u0, v1, u1, buf, max_points, walk):
 def _search(img, tsum, pen, state, seed_v, seed_u, seed_d, rows, max_points, follow):  # pragma: no cover
     """The search of `find_borders` with the all-zero (H, W) ``state`` (the marks of border
     following); the marks are cleared again before returning, so that the caller can keep the
-    array for the next frame (allocating and zeroing 2 MB per call cost ~20-40 us)."""
+    array for the next frame instead of allocating and zeroing 2 MB per call."""
     pts, offsets, kinds, counts, status = _search_marked(img, tsum, pen, state, seed_v, seed_u, seed_d, rows,
                                                          max_points, follow)
     for i in range(pts.shape[0]):

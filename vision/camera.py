@@ -303,10 +303,10 @@ def _inverse_radial_bracketed(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndar
 
 
 # ----------------------------------------------------------------------------------------------
-# numba kernels: the per-pixel work of unproject / unproject_jacobian / project in one pass. The
-# numpy versions made ~40 array passes (Horner, Newton iterations, where/stack) over arrays of a
-# few hundred edge pixels per call, several calls per frame (~0.1 ms each, most of it per-call
-# overhead); the kernels are one loop with the same formulas.
+# numba kernels: the per-pixel work of unproject / unproject_jacobian / project in one pass, with
+# the formulas of the array versions (tests/vision_reference.py), which take ~40 array passes
+# (Horner, Newton iterations, where/stack) over a few hundred edge pixels per call, several calls
+# per frame: mostly per-call overhead.
 
 
 @numba.njit(cache=True, nogil=True)
@@ -454,11 +454,6 @@ def _pixels(uv: np.ndarray) -> np.ndarray:
     if uv.shape[-1] != 2:
         raise ValueError(f"unproject: uv must have shape (..., 2), got {uv.shape}")
     return uv
-
-
-def _normalised(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    uv = _pixels(uv)
-    return (uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy
 
 
 def _unproject(camera: FisheyeCamera, uv: np.ndarray, jac: bool):

@@ -31,7 +31,8 @@ def _spread_indices(m, k):  # pragma: no cover - numba
     """``np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))`` for m > k > 1 (the same
     arithmetic: i * step, the last value exactly m - 1, round half to even; the step exceeds 1,
     so the rounded values are distinct and no sort is needed, but repeats are skipped anyway);
-    np.unique and np.linspace cost ~20 us a call, and edge lengths change from frame to frame."""
+    np.unique and np.linspace have a per-call overhead, and edge lengths change from frame to
+    frame."""
     step = (m - 1) / (k - 1)
     out = np.empty(k, np.int64)
     n = 0
@@ -117,7 +118,7 @@ def refine_local(H: np.ndarray, e0: np.ndarray, c: float, iters: int = 8) -> np.
 def _refine_kernel(H, e, c, iters):
     """Gauss-Newton of `refine_local`: step ``dx = -lstsq(H T, H e - c)``, ``e <- (e + T dx) /
     |.|``, stop when |dx| < 1e-13. The two-column step from its 2x2 normal equations (Cholesky,
-    one pass over the sums; a LAPACK gelsd call per iteration cost ~15 us, 5-10 per frame): their
+    one pass over the sums, instead of a LAPACK gelsd call per iteration, 5-10 per frame): their
     squared condition only slows the convergence, the fixed point ``(H T)^T (H e - c) = 0`` is the
     least-squares one whatever the step's rounding. A second column within rcond = eps max(m, 2)
     of the first's span (a degenerate edge) is dropped, as gelsd's minimum-norm step to first

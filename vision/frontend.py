@@ -1,51 +1,41 @@
 """The vision front end, assembled: from a raw, distorted camera frame to Earth-nadir, Sun and Moon
 direction vectors with covariances (003 §3, §5; 000 §2.3-2.4; 002 §3; 004 §2.2).
 
-Pipeline per target (`process_frame`)
--------------------------------------
+Pipeline per target (`process_frame`; options: `vision.config`)
+---------------------------------------------------------------
 1. Detection (`vision.candidates.detect`): brightness gate, threshold, border-following edge
-   search (one brightness histogram per frame, shared by the targets). Earth: image border and payload-mask boundary only (003 §3.1); Sun/Moon: plus search
-   lines ``2 f tan(alpha_min)`` apart (003 §5).
-2. Candidate scoring, cheap: each candidate (longest first, at most ``max_candidates``; after
-   one is accepted, only those at least ``compete_fraction`` as long) is subsampled to at most
-   ``score_rays`` pixels spread along it, only those pixels are unprojected
-   (`vision.camera.unproject`), and fitted directly; when more than ``direct_outlier_fraction``
-   of them miss the cone by ``ransac_threshold_px`` (converted per ray to an angle,
-   `vision.ransac.pixel_angle`), the pre-verified RANSAC cone fit (`vision.ransac.ransac_cone`,
-   000 §2.3) runs instead. Earth: known alpha from the height (prior) and the effective
-   atmosphere thickness d (003 eq. (5)), in the fit frame of the limb model (`vision.oblate`).
-   Sun/Moon: alpha estimated (003 §5).
+   search (one brightness histogram per frame, shared by the targets). Earth: image border and
+   payload-mask boundary only (003 §3.1); Sun/Moon: plus search lines ``2 f tan(alpha_min)``
+   apart (003 §5).
+2. Candidate scoring, cheap (`vision.scoring`): each candidate (longest first, at most
+   ``scoring.max_candidates``; after one is accepted, only those at least
+   ``scoring.compete_fraction`` as long) is subsampled to at most ``scoring.score_rays`` pixels
+   spread along it, only those pixels are unprojected (`vision.camera.unproject`), and fitted
+   directly; when more than ``scoring.direct_outlier_fraction`` of them miss the cone by
+   ``ransac.threshold_px`` (converted per ray to an angle, `vision.ransac.pixel_angle`), the
+   pre-verified RANSAC cone fit (`vision.ransac.ransac_cone`, 000 §2.3) runs instead. Earth:
+   known alpha from the height (prior) and the effective atmosphere thickness d (003 eq. (5)),
+   in the fit frame of the limb model (`vision.oblate`). Sun/Moon: alpha estimated (003 §5).
 3. Acceptance per candidate, each failure giving a reason: enough pixels and inliers, residual
    (mean squared angular distance of the inliers from the cone, `vision.nadir.angle_residual`)
-   below ``max_residual`` (003 §7.3, re-derived below), Sun/Moon apparent radius inside
-   ``[alpha_min, alpha_max]``, within ``gate_deg`` of a predicted direction when the prior gives
-   one (Sun/Moon: ephemeris + attitude; Earth: the geocentric nadir from x_e and R_ec), a disc that is bright inside and dark around (`disc_check`), the implied conic passes through the image (003 §3.3 sanity check),
-   and the mirrored-nadir test (002 §3): pixels a few pixels on the body side of the edge must be
-   bright and those on the space side dark (`vision.nadir.earth_side_check`); a fit that fails it
-   is retried from its mirror image (`vision.nadir.mirrored_direction`, refined locally).
+   below ``max_residual`` (003 §7.3, re-derived in `vision.config`), Sun/Moon apparent radius
+   inside ``[alpha_min_deg, alpha_max_deg]``, within ``gate_deg`` of a predicted direction when
+   the prior gives one (Sun/Moon: ephemeris + attitude; Earth: the geocentric nadir from x_e and
+   R_ec), a disc that is bright inside and dark around (`vision.probes.disc_check`), the implied
+   conic passes through the image (003 §3.3 sanity check), and the mirrored-nadir test (002 §3):
+   pixels a few pixels on the body side of the edge must be bright and those on the space side
+   dark (`vision.probes.side_score`); a fit that fails it is retried from its mirror image
+   (`vision.nadir.mirrored_direction`, refined locally).
 4. The accepted candidate with the smallest residual wins (003 §3.4). Only the winner is
-   processed fully: all its pixels are unprojected with the Jacobian
+   processed fully: at most ``fit.rays`` of its pixels are unprojected with the Jacobian
    (`vision.camera.unproject_jacobian`), inliers re-selected, refitted, and the O(m) covariance of
    003 eq. (33) with the correlated pixel noise (R, L) of eqs. (34)-(36), (38) is computed
    (`vision.covariance.direction_covariance`), plus, for the Earth, the term of the uncertain
    effective atmosphere thickness (sigma_d, below), and the spherical overbound of eq. (37).
    Earth with a prior giving x_e, R_ec and the Sun direction: before the covariance the winner's
    inlier pixels are moved to the fraction-of-peak crossing of the limb profile
-   (`vision.limb.limb_edge_points`, exposure-invariant) and refitted with d = ``limb_height_m``
-   (sigma ``limb_height_sigma_m``) when enough profiles are usable (``limb_*`` settings).
-
-Residual thresholds (003 §7.3 re-derived for our residual)
-----------------------------------------------------------
-003 accepts horizons with delta < 0.025 and Suns with delta < 0.5e-5, delta being eq. (28): the
-*sum* over the m edge points of squared distances along x_p on the z = f plane, with f = 1
-(normalised coordinates; with f in pixels the 0.025 would be below the quantisation noise of a
-single pixel). Our residual is the *mean* squared angular distance [rad^2]. A plane distance
-dx at off-axis angle theta is an angle of about dx cos^2(theta); for 003's horizons (m ~ 2000
-pixels spanning the 1920 px width, theta ~ 30-45 deg, cos^-4 ~ 2-4) delta < 0.025 means
-mean(angle^2) < 0.025 / 2000 / 3 ~ 4e-6 rad^2 (2 mrad RMS, ~2.2 px at f = 1110 px). For the Sun
-(a saturated, blooming disc, m ~ 100 pixels near the axis) delta < 0.5e-5 means
-mean(angle^2) < 5e-8 rad^2 (0.22 mrad RMS, 0.25 px). The defaults (`scenarios/library/vision/
-default.toml`) start from these figures and were checked on rendered frames (docs/vision.md).
+   (`vision.limb.limb_edge_points`, exposure-invariant) and refitted with d = ``limb.height_m``
+   (sigma ``limb.height_sigma_m``) when enough profiles are usable (`vision.limb_refit`).
 
 Covariance terms
 ----------------
@@ -54,7 +44,8 @@ Covariance terms
   crosses the threshold, at a tangent height d that varies with exposure and illumination
   (003 §4, 004 §3.4.3). With the *constrained* unit-norm fit a wrong d is a wrong alpha, and on
   a partial arc a wrong alpha tilts e towards the arc (nearly 1:1 for a short arc), so
-  ``P_c += sigma_d^2 g g^T`` with ``g = de/dd`` (by a second fit at d + 1 km). 003 §4 found the
+  ``P_c += sigma_d^2 g g^T`` with ``g = de/dd`` (`vision.fitting.alpha_sensitivity` times
+  dalpha/dd, mapped into the camera frame). 003 §4 found the
   estimate insensitive to d because its linear fit (eq. (24)) does not use alpha at all (the
   direction of lstsq(H, cos(alpha) 1) is independent of alpha; see `vision.nadir`); that
   estimator is ill-conditioned on partial arcs, which is why the constrained fit is used.

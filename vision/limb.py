@@ -65,9 +65,9 @@ Near the terminator c changes by ``exp(R mu dmu / H)`` over the profile, which m
 and the crossing by kilometres. `profile_height_shift` finds the crossing on (4) with that mu(h)
 and the Earth's shadow by the detector's rules; tau, which then no longer cancels, follows from
 the overhead-Sun height h_f(1) by (5). On rendered twilight frames the tangent heights of the
-crossings then agree with it to 0.1-0.3 km per frame (eq. (5) alone: 1-3.5 km), and the nadir
-RMS of the limb-edge frames fell from 0.110 to 0.048 deg (docs/vision.md). It replaces the
-measured twilight table (`TargetConfig.limb_twilight_*`, now empty by default).
+crossings then agree with it to 0.1-0.3 km per frame (eq. (5) alone: 1-3.5 km; docs/vision.md).
+With it no measured twilight correction is needed (`vision.config.LimbOptions.twilight_el_deg`
+and ``twilight_dh_m`` hold one when wanted; empty by default).
 """
 from __future__ import annotations
 
@@ -133,7 +133,7 @@ def _bilinear(image: np.ndarray, channel: int, qx: np.ndarray, qy: np.ndarray) -
     BORDER_CONSTANT, -1)`` on the float32 plane (exact bilinear weights; neighbours outside the
     image count as -1; equal to it to float32 round-off, tests/test_limb.py), gathered from the
     four neighbours of each sample only instead of converting the whole frame to float32 first
-    (~0.9 ms for 1920 x 1080 against ~0.1 ms for the ~3e4 samples of a limb)."""
+    (a limb has ~3e4 samples, a 1920 x 1080 frame 2e6 pixels)."""
     img = image if image.ndim == 3 else image[:, :, None]
     ch = -1 if (channel < 0 and img.shape[2] > 1) else (0 if img.shape[2] == 1 else channel)
     out = np.empty(qx.shape, dtype=np.float32)
@@ -229,8 +229,8 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     (k <= i0), scan inwards from i0 to the first sample below ``keep`` (= 1 - min_drop) times the
     running maximum (the stop; none: unusable), ``peak`` = the maximum before it, ``jpk`` its first
     index, the last sample before jpk below ``tgt = bg + fraction (peak - bg)``, and the linear
-    crossing between it and the next one. Why a kernel: the tone curve (a float32 power) on all
-    ~34 000 samples of a 512-pixel limb and ~30 array passes cost ~1.2 ms per frame; here samples
+    crossing between it and the next one. Why a kernel: the array version evaluates the tone curve
+    (a float32 power) on all ~34 000 samples of a 512-pixel limb in ~30 array passes; here samples
     are taken only up to the stop (all of them only when the profile's end points are not
     safely inside the image, where the "inside" test needs every sample) and, the tone curve
     being monotone, the running maximum, the background and most of the drop tests use the
@@ -633,14 +633,14 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     """Height [m] of the fraction-of-peak crossing relative to the Sun overhead (mu_s = 1), eq. (5):
     ``h_f(mu) - h_f(1) = -H ln(u_f(c(mu)) / u_f(c(1)))``. It depends on the Sun elevation at the
     tangent point and on H (through c, `sun_path_ratio`), not on the exposure, the phase function
-    or the optical depth tau (which only sets h_f(1), the configured ``limb_height_m``).
+    or the optical depth tau (which only sets h_f(1), the configured ``limb.height_m``).
     Measured on rendered frames (docs/vision.md): +0.6 km at 20 deg, +1.5 km at 8 deg, +4 km at
     2 deg elevation."""
     lnc, lnu = _uf_table(float(fraction))
     mu = np.asarray(mu_s, dtype=float)
     out = np.empty(mu.shape)
-    # one kernel: sun_path_ratio and the table look-up (np.interp on its uniform ln c grid) were
-    # ~15 numpy calls, ~50 us per limb at 400 points
+    # one kernel for sun_path_ratio and the table look-up (np.interp on its uniform ln c grid),
+    # instead of ~15 numpy calls per limb
     _fraction_shift_kernel(np.ascontiguousarray(mu.reshape(-1)), float(lnc[0]), float(lnc[1] - lnc[0]), lnu,
                            float(scale_height_m), float(radius_m), out.reshape(-1))
     return out

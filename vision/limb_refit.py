@@ -33,8 +33,8 @@ def tilt_corrected_attitude(R_ec: np.ndarray, e_c: np.ndarray, x_e: np.ndarray) 
     b0, b1, b2 = (-np.asarray(x_e, dtype=float)).tolist()
     na, nb = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2), math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
     a0, a1, a2, b0, b1, b2 = a0 / na, a1 / na, a2 / na, b0 / nb, b1 / nb, b2 / nb
-    # Rodrigues' rotation a -> b about k = a x b / |a x b| (plain floats: numpy's small-vector
-    # calls cost ~50 us here)
+    # Rodrigues' rotation a -> b about k = a x b / |a x b| (plain floats: numpy's per-call
+    # overhead dominates on 3-vectors)
     k0, k1, k2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
     s = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
     c = a0 * b0 + a1 * b1 + a2 * b2
@@ -81,12 +81,12 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_sta
     with its height; None when too few limb points are usable (the caller keeps the threshold
     edge). Returns (model, fit, uv, rays, J, inliers, sigma_d, used_fraction, mean_shift).
 
-    With ``limb_sun_path`` each usable point's crossing height is predicted from the Sun
+    With ``limb.sun_path`` each usable point's crossing height is predicted from the Sun
     elevation at its tangent point (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`)
     and its ray is turned towards the body by ``alpha(d + dh) - alpha(d)``
     (`LimbModel.cone_angle_change`), so
-    that all points sit at the overhead-Sun height ``limb_height_m`` of the fit (one cone angle);
-    the covariance term is then ``sigma_d^2 = limb_height_sigma_m^2 + (limb_sun_path_sigma *
+    that all points sit at the overhead-Sun height ``limb.height_m`` of the fit (one cone angle);
+    the covariance term is then ``sigma_d^2 = limb.height_sigma_m^2 + (limb.sun_path_sigma *
     mean dh)^2`` (the model's measured error grows with the shift, docs/vision.md)."""
     model_l, R_ec, x_e, sun_e = limb
     lc = LimbEdgeConfig(fraction=tc.limb.fraction, channel=tc.limb.channel)
@@ -152,10 +152,10 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_sta
 
 def _sun_path_shifts(rays_c, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdgeConfig, keep_all: bool = False):
     """Crossing-height shifts of limb rays (camera frame) with the attitude R_t (camera -> e):
-    ``(keep, dh, el, twilight)``: keep the points with the Sun above ``limb_min_sun_elev_deg`` at
+    ``(keep, dh, el, twilight)``: keep the points with the Sun above ``limb.min_sun_elev_deg`` at
     their tangent points (all with ``keep_all``), dh [m] their shifts (eq. (5) of `vision.limb`,
-    with the Sun elevation's change down the profile below ``limb_profile_below_deg``; zeros
-    without ``limb_sun_path``), el [rad] their Sun elevations, twilight: some of them that low."""
+    with the Sun elevation's change down the profile below ``limb.profile_below_deg``; zeros
+    without ``limb.sun_path``), el [rad] their Sun elevations, twilight: some of them that low."""
     rays_e = rays_c @ R_t.T
     h_t, mu = tangent_height_sun(rays_e, x_e, sun_e)
     keep = np.ones(mu.size, bool) if keep_all else mu >= math.sin(math.radians(tc.limb.min_sun_elev_deg))
@@ -172,12 +172,12 @@ def _sun_path_shifts(rays_c, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdg
 def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c, J, pa, e_c, rays_limb,
                                 ok, dh, used):
     """Threshold edge calibrated with the usable limb profiles of the same frame
-    (``TargetConfig.limb_calibrate_below``): ``d_i`` = the height whose cone is ``a_i`` wider than
+    (``LimbOptions.calibrate.below``): ``d_i`` = the height whose cone is ``a_i`` wider than
     the cone of ``h_i`` (`LimbModel.height_change`) at the usable points
-    (h_i = ``limb_height_m`` + Sun-path shift: the known height of the fraction-of-peak crossing;
+    (h_i = ``limb.height_m`` + Sun-path shift: the known height of the fraction-of-peak crossing;
     a_i the angle from it out to the threshold pixel), ``d_thr = median(d_i)``, and every
-    threshold ray turned towards the body by ``alpha(d_thr) - alpha(limb_height_m)`` so that the
-    whole arc fits the cone of ``limb_height_m`` (`LimbModel.cone_angle_change`, as for the Sun-path
+    threshold ray turned towards the body by ``alpha(d_thr) - alpha(limb.height_m)`` so that the
+    whole arc fits the cone of ``limb.height_m`` (`LimbModel.cone_angle_change`, as for the Sun-path
     shift). None when the refit keeps fewer than 20 inliers."""
     a = np.arccos(np.clip(np.sum(rays_c[ok] * rays_limb, axis=1), -1.0, 1.0))
     # sign: positive when the limb crossing lies towards the body from the threshold pixel
@@ -195,7 +195,7 @@ def _calibrated_threshold_refit(tc: TargetConfig, model_l: LimbModel, uv, rays_c
 
 
 def _refit_turned(model_l: LimbModel, rays2, e_c, thr):
-    """The cone of ``model_l`` (d = ``limb_height_m``) fitted to rays already turned to that
+    """The cone of ``model_l`` (d = ``limb.height_m``) fitted to rays already turned to that
     height, from e_c, with the inliers re-selected twice (``thr`` [rad] per ray); (fit, inliers)
     or None below 20 inliers."""
     H2 = model_l.to_fit(rays2)
@@ -211,11 +211,11 @@ def _flank_refit(image, camera, tc: TargetConfig, lc: LimbEdgeConfig, model_l: L
                  e_c, R_t, x_e, sun_e, used):
     """Threshold edge with each pixel's height fitted on the unsaturated flank of its limb profile
     (`vision.limb.flank_heights`; the limb maximum clipped by the exposure): on
-    ``limb_flank_profiles`` profiles spread along the edge, the heights more than 3 robust
+    ``limb.flank.profiles`` profiles spread along the edge, the heights more than 3 robust
     sigmas (at least 1 km) from their median dropped, the rest interpolated along the edge; each
-    threshold ray turned towards the body by ``alpha(h_i) - alpha(limb_height_m)`` and the cone of
-    ``limb_height_m`` fitted. None with fewer than ``limb_flank_min_profiles`` fitted profiles or
-    20 inliers. Covariance term ``limb_flank_sigma_m`` with the heights' spread over sqrt(n)."""
+    threshold ray turned towards the body by ``alpha(h_i) - alpha(limb.height_m)`` and the cone of
+    ``limb.height_m`` fitted. None with fewer than ``limb.flank.min_profiles`` fitted profiles or
+    20 inliers. Covariance term ``limb.flank.sigma_m`` with the heights' spread over sqrt(n)."""
     m = uv.shape[0]
     idx = subsample(m, tc.limb.flank.profiles)
     h = flank_heights(image, camera, uv[idx], rays_c[idx], e_c, pa[idx], R_t, x_e, sun_e, lc,

@@ -112,7 +112,7 @@ def conic_type(e_c: np.ndarray, alpha: float, tol: float = 1e-12) -> tuple[float
 
 def per_ray(values, m: int) -> np.ndarray:
     """A scalar or (m,) values as a C-contiguous float64 (m,) array, not copied when it already
-    is one (np.broadcast_to costs ~10 us a call; this is called for every ray set)."""
+    is one (np.broadcast_to's per-call overhead matters: this is called for every ray set)."""
     a = np.asarray(values, dtype=float)
     if a.shape == (m,):
         return np.ascontiguousarray(a)
@@ -220,7 +220,7 @@ def pframe_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float, f: float 
 
 
 def norm3(v: np.ndarray) -> float:
-    """|v| of a 3-vector in float arithmetic (np.linalg.norm's call overhead is ~3 us; fits are
+    """|v| of a 3-vector in float arithmetic (without np.linalg.norm's call overhead; fits are
     made several times per frame); NaN/inf propagate."""
     a, b, c = v.tolist()
     return math.sqrt(a * a + b * b + c * c)

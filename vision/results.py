@@ -22,7 +22,7 @@ class VectorRecord:
     P_c : full 3x3 covariance (003 eq. (33) + atmosphere term); P_overbound : eq. (37).
     residual : mean squared angular residual of the inliers [rad^2].
     pixel_count : pixels of the winning edge candidate; inlier_count : its inliers (counted on the
-        up to ``fit_rays`` pixels used for the final fit, scaled to the whole edge).
+        up to ``fit.rays`` pixels used for the final fit, scaled to the whole edge).
     conic_type : "ellipse" / "hyperbola" of the fitted cone in the image (003 Table 1).
     alpha : cone half-angle [rad] (Earth: in the fit frame of the limb model; Sun/Moon: estimated).
     model : "ellipsoid", "sphere" (Earth) or "" (Sun/Moon).
