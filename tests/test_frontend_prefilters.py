@@ -91,7 +91,7 @@ def test_gate_pre_filter_rejects_only_what_the_gate_rejects(geo_frame, monkeypat
         prior = F.FramePrior(x, R_wrong)
         with_filter = F.process_frame(fr.image, CAM, cfg, prior=prior, rng=np.random.default_rng(1))
         with monkeypatch.context() as mp:
-            mp.setattr(F, "_gate_reachable", lambda *a, **k: True)
+            mp.setattr(scoring, "_gate_reachable", lambda *a, **k: True)
             without = F.process_frame(fr.image, CAM, cfg, prior=prior, rng=np.random.default_rng(1))
         a, b = with_filter.record("earth"), without.record("earth")
         if psi_deg > cfg.earth.gate_deg:
