@@ -205,8 +205,7 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     L_eff = max(1.0, tc.fit.L_px / step)   # correlation length in steps of the subsampled edge
     sigma_d = tc.atmosphere_sigma_m
     if model is not None and limb is not None and tc.limb.fraction > 0:
-        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), fit.e_c,
-                        J[inl])
+        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
         t_limb = time.perf_counter()
         timings["earth.limb"] = t_limb - t3
         t3 = t_limb

@@ -76,10 +76,14 @@ def _profile_correction(rays_e, h_t, mu, nadir_e, x_e, sun_e, dh_eq5, tc: Target
     return np.interp(np.arange(n), sub[fin], corr[fin])
 
 
-def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, e_start_fit, J=None):
-    """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels and the refit
-    with its height; None when too few limb points are usable (the caller keeps the threshold
-    edge). Returns (model, fit, uv, rays, J, inliers, sigma_d, used_fraction, mean_shift).
+def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=None):
+    """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels (uv, camera rays,
+    pixel angles pa, Jacobians J) and the refit with its height, from the threshold edge's nadir
+    e_c (camera frame); ``limb`` = (limb model at ``limb.height_m``, R_ec, x_e, Sun direction in
+    e). Returns (model, fit, uv, rays, J, inliers, sigma_d, used fraction, mean shift [m], path,
+    threshold-edge thickness [m]) (path "limb", "flank" or "calibrated", `TargetResult.limb_path`),
+    or None when too few limb points are usable and neither fallback applies (the caller keeps the
+    threshold edge).
 
     With ``limb.sun_path`` each usable point's crossing height is predicted from the Sun
     elevation at its tangent point (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`)
