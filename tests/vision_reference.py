@@ -78,7 +78,8 @@ def profile_crossings_reference(image, uv, n, s, config: LimbEdgeConfig):
 def find_borders_reference(binary, mask: PayloadMask | None = None, rows=None) -> Borders:
     """The same borders from OpenCV's ``findContours(RETR_EXTERNAL, CHAIN_APPROX_NONE)`` on the
     whole binary image (Suzuki & Abe, every pixel examined), kept if they touch the image border,
-    lie next to the mask or have a pixel on a search row. The reference of `vision.borders.find_borders` and the baseline of its benchmark.
+    lie next to the mask or have a pixel on a search row: the reference of
+    `vision.borders.find_borders` and the baseline of its benchmark.
 
     ``binary``: (H, W) uint8, nonzero = white; masked pixels are set to black first.
     """
