@@ -8,8 +8,9 @@ import pytest
 
 from vision import mask as vmask
 from vision.binarize import binarize
-from vision.borders import (SEED_LINE, SEED_MASK, SEED_RING, SearchConfig, find_borders,
-                            find_borders_reference, search_line_spacing, search_rows)
+from tests.vision_reference import find_borders_reference
+from vision.borders import (SEED_LINE, SEED_MASK, SEED_RING, SearchConfig, find_borders, search_line_spacing,
+                            search_rows)
 
 
 def _sets(borders):

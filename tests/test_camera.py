@@ -69,24 +69,25 @@ def test_inverse_radial_precision_and_axis():
 @pytest.mark.parametrize("cam", CAMERAS, ids=["atek", "poly5", "fish190"])
 def test_kernels_agree_with_the_numpy_reference(cam):
     # The numba kernels (table start + one Newton step per pixel) against the vectorised numpy
-    # reference (all pixels iterated together, the implementation they replaced): both stop at
+    # references (all pixels iterated together, tests/vision_reference.py): both stop at
     # Newton steps below 1e-13 rad, so they agree to float64 rounding (a few 1e-16 rad; 1e-14
     # allows for the ulps of sin/cos/atan2). Invalid radii, the axis, NaN and far-off pixels too.
-    from vision.camera import _inverse_radial_reference, _project_reference, _unproject_reference
+    from tests.vision_reference import project_reference, unproject_reference
+    from vision.camera import _inverse_radial_bracketed
     rng = np.random.default_rng(7)
     uv = np.stack([rng.uniform(-0.5, cam.width - 0.5, 50000), rng.uniform(-0.5, cam.height - 0.5, 50000)], -1)
     uv = np.vstack([uv, [[cam.cx, cam.cy], [cam.cx + 1e-7, cam.cy], [np.nan, 1.0], [1e7, 1e7]]])
     r = np.hypot((uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy)
     r = np.concatenate([r, [0.0, cam.max_radius, -1e-3, cam.max_radius * 1.01]])
-    th, th_ref = inverse_radial(cam, r), _inverse_radial_reference(cam, r)
+    th, th_ref = inverse_radial(cam, r), _inverse_radial_bracketed(cam, r)
     np.testing.assert_array_equal(np.isnan(th), np.isnan(th_ref))
     assert np.nanmax(np.abs(th - th_ref)) < 1e-14
-    rays, ref = unproject(cam, uv), _unproject_reference(cam, uv)
+    rays, ref = unproject(cam, uv), unproject_reference(cam, uv)
     np.testing.assert_array_equal(np.isnan(rays), np.isnan(ref))
     assert np.nanmax(np.abs(rays - ref)) < 1e-14
     ok = np.all(np.isfinite(rays), axis=1)
     p = np.vstack([rays[ok] * rng.uniform(0.1, 10.0, (ok.sum(), 1)), [[0, 0, -1.0], [0, 0, 0.0], [0, 0, 2.0]]])
-    uv2, uv_ref = project(cam, p), _project_reference(cam, p)
+    uv2, uv_ref = project(cam, p), project_reference(cam, p)
     np.testing.assert_array_equal(np.isnan(uv2), np.isnan(uv_ref))
     assert np.nanmax(np.abs(uv2 - uv_ref)) < 1e-9    # pixels ~1e3: float64 rounding ~1e-13
     # shapes: scalars and leading axes pass through

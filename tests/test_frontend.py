@@ -20,7 +20,8 @@ from scenarios.config.vision import load_vision_config, vision_config_from_dict
 from scenarios.errors import UserError
 from vision import mask as vmask
 from vision.camera import atek_camera, unproject
-from vision.frontend import (FramePrior, TargetConfig, VisionConfig, _side_score, default_config,
+from vision.probes import side_score
+from vision.frontend import (FramePrior, TargetConfig, VisionConfig, default_config,
                              process_frame)
 from tests.poses import pose
 
@@ -99,10 +100,10 @@ def test_mirrored_nadir_is_detected_by_the_side_probe(geo_frames):
     uv = np.stack([u[keep], v[keep]], -1).astype(float)
     rays = unproject(CAM, uv)
     alpha = float(np.median(np.arccos(rays @ fr.e_c_earth)))
-    good = _side_score(fr.image, CAM, None, 60.0, rays, uv, fr.e_c_earth, alpha, 3.0, 24)
+    good = side_score(fr.image, CAM, None, 60.0, rays, uv, fr.e_c_earth, alpha, 3.0, 24)
     e_m = mirrored_direction(fr.e_c_earth, rays)
     alpha_m = float(np.median(np.arccos(rays @ e_m)))   # each direction with its own cone
-    bad = _side_score(fr.image, CAM, None, 60.0, rays, uv, e_m, alpha_m, 3.0, 24)
+    bad = side_score(fr.image, CAM, None, 60.0, rays, uv, e_m, alpha_m, 3.0, 24)
     assert np.degrees(np.abs(np.arccos(rays @ e_m) - alpha_m)).max() < 0.1   # the mirror fits too
     assert good > 0.95 and bad < 0.05
 
@@ -165,8 +166,38 @@ def test_rendered_flight_frames(flight_frames):
 # configuration
 
 
-def test_default_toml_is_the_default_config():
-    assert load_vision_config(camera=CAM) == default_config(CAM.fx)
+def test_defaults_come_from_the_dataclasses():
+    """No file: the dataclasses' defaults with the search lines spaced for the camera; the
+    commented example file changes nothing; a file in the flat format holding every default
+    loads to the same configuration."""
+    from pathlib import Path
+
+    from scenarios.config.vision import DEFAULT_VISION_FILE
+    want = default_config(CAM.fx)
+    assert load_vision_config(camera=CAM) == want
+    assert load_vision_config(DEFAULT_VISION_FILE, camera=CAM) == want
+    assert load_vision_config(Path(__file__).parent / "data" / "vision_flat_format.toml", camera=CAM) == want
+    assert want.sun.detection.search.line_spacing_px == pytest.approx(2 * CAM.fx * math.tan(math.radians(0.5)))
+    assert VisionConfig().sun.detection.search.line_spacing_px is None
+
+
+def test_a_file_changes_only_the_keys_it_gives():
+    """``[moon] enabled = true`` alone enables the Moon with its defaults and keeps the Earth's and
+    the Sun's; a nested stage table and a flat key change one field each."""
+    want = default_config(CAM.fx)
+    cfg = vision_config_from_dict({"moon": {"enabled": True}}, CAM)
+    assert cfg.moon == dataclasses.replace(want.moon, enabled=True)
+    assert cfg.earth == want.earth and cfg.sun == want.sun
+    cfg = vision_config_from_dict({"earth": {"ransac": {"threshold_px": 3}, "limb": {"flank": {"profiles": 0}}},
+                                   "sun": {"limb_fraction": 0.0, "min_length_px": 20}}, CAM)
+    assert cfg.earth == dataclasses.replace(
+        want.earth, ransac=dataclasses.replace(want.earth.ransac, threshold_px=3.0),
+        limb=dataclasses.replace(want.earth.limb, flank=dataclasses.replace(want.earth.limb.flank, profiles=0)))
+    assert isinstance(cfg.earth.ransac.threshold_px, float)
+    assert cfg.sun == dataclasses.replace(
+        want.sun, limb=dataclasses.replace(want.sun.limb, fraction=0.0),
+        detection=dataclasses.replace(want.sun.detection, min_length=20))
+    assert cfg.moon == want.moon
 
 
 def test_config_errors_name_the_key(tmp_path):
@@ -176,6 +207,14 @@ def test_config_errors_name_the_key(tmp_path):
         vision_config_from_dict({"sun": {"min_pixels": 2.5}})
     with pytest.raises(UserError, match="L_px"):
         vision_config_from_dict({"earth": {"L_px": 0.5}})
+    with pytest.raises(UserError, match=r"v\.toml: \[earth\.limb\.flank\] unknown key\(s\) \['profile'\]"):
+        vision_config_from_dict({"earth": {"limb": {"flank": {"profile": 3}}}}, where="v.toml")
+    with pytest.raises(UserError, match=r"\[sun\] ransac must be a table"):
+        vision_config_from_dict({"sun": {"ransac": 2.0}})
+    with pytest.raises(UserError, match="given twice"):
+        vision_config_from_dict({"earth": {"ransac_threshold_px": 2.0, "ransac": {"threshold_px": 3.0}}})
+    with pytest.raises(UserError, match=r"\[earth\.limb\] fraction = 'x'; expected a number"):
+        vision_config_from_dict({"earth": {"limb": {"fraction": "x"}}})
     p = tmp_path / "v.toml"
     p.write_text("[earth\n")
     with pytest.raises(UserError, match="not valid TOML"):
@@ -319,13 +358,13 @@ def test_earth_gate_rejects_a_nadir_far_from_the_predicted_one(geo_frames):
 
 
 def test_refine_local_reaches_the_constrained_minimum_and_the_mirrored_stationary_point():
-    """`_refine_local` (numba Gauss-Newton on |e| = 1): from a start 2 deg off it converges to the
+    """`vision.fitting.refine_local` (numba Gauss-Newton on |e| = 1): from a start 2 deg off it converges to the
     global minimum of `vision.nadir.constrained_cone_fit` (closed-form secular-equation solution,
     an independent method) to 1e-10 rad; from the mirror image across the arc's plane (002 §3) it
     converges to a point where the tangent-plane gradient T^T H^T (H e - c) vanishes (a
     stationary point of the constrained problem, to round-off relative to |H|^2)."""
     from nav.rotation import tangent_basis
-    from vision.frontend import _refine_local
+    from vision.fitting import refine_local
     from vision.nadir import constrained_cone_fit, mirrored_direction
 
     rng = np.random.default_rng(11)
@@ -341,9 +380,9 @@ def test_refine_local_reaches_the_constrained_minimum_and_the_mirrored_stationar
     c = math.cos(alpha)
     e_glob = constrained_cone_fit(H, c)
     start = e_glob + 0.035 * T[:, 1]
-    e_loc = _refine_local(H, start, c)
+    e_loc = refine_local(H, start, c)
     assert angle_deg(e_loc, e_glob) < math.degrees(1e-10)
-    e_mir = _refine_local(H, mirrored_direction(e_glob, H), c)
+    e_mir = refine_local(H, mirrored_direction(e_glob, H), c)
     assert angle_deg(e_mir, e_glob) > 1.0                 # the other minimum
     Tm = tangent_basis(e_mir)
     grad = Tm.T @ H.T @ (H @ e_mir - c)

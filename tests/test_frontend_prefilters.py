@@ -11,7 +11,7 @@ import pytest
 
 from nav import earth
 from nav.rotation import tangent_basis
-from vision import frontend as F
+from vision import fitting, frontend as F, image_geometry, scoring
 from vision.borders import SearchConfig, search_line_spacing, search_rows
 from vision.camera import atek_camera, project
 from vision.candidates import Candidate
@@ -48,7 +48,7 @@ def test_gate_search_rows_keep_every_row_a_disc_in_the_gate_crosses():
     checked = 0
     for off, az in ((0.0, 0.0), (20.0, 30.0), (35.0, 200.0), (40.0, 95.0)):
         pred = _direction(off, az)
-        rows = F.gate_search_rows(cam, pred, cap, search)
+        rows = image_geometry.gate_search_rows(cam, pred, cap, search)
         assert rows is not None and set(rows.tolist()) <= set(raster.tolist())
         assert rows.size < raster.size          # the point of it: fewer rows than the raster
         T = tangent_basis(pred)
@@ -68,11 +68,11 @@ def test_gate_search_rows_keep_every_row_a_disc_in_the_gate_crosses():
     assert checked > 1000
     # a cap wholly beyond the lens's range: no row; partly beyond it: the whole raster (None)
     beyond = _direction(math.degrees(cam.max_theta) + 20.0, 0.0)
-    assert F.gate_search_rows(cam, beyond, cap, search).size == 0
+    assert image_geometry.gate_search_rows(cam, beyond, cap, search).size == 0
     edge = _direction(math.degrees(cam.max_theta) - 5.0, 0.0)
-    assert F.gate_search_rows(cam, edge, cap, search) is None
+    assert image_geometry.gate_search_rows(cam, edge, cap, search) is None
     # no raster (Earth search: image border only): nothing to restrict
-    assert F.gate_search_rows(cam, _direction(10.0, 0.0), cap, SearchConfig()) is None
+    assert image_geometry.gate_search_rows(cam, _direction(10.0, 0.0), cap, SearchConfig()) is None
 
 
 def test_gate_pre_filter_rejects_only_what_the_gate_rejects(geo_frame, monkeypatch):
@@ -91,7 +91,7 @@ def test_gate_pre_filter_rejects_only_what_the_gate_rejects(geo_frame, monkeypat
         prior = F.FramePrior(x, R_wrong)
         with_filter = F.process_frame(fr.image, CAM, cfg, prior=prior, rng=np.random.default_rng(1))
         with monkeypatch.context() as mp:
-            mp.setattr(F, "_gate_reachable", lambda *a, **k: True)
+            mp.setattr(scoring, "_gate_reachable", lambda *a, **k: True)
             without = F.process_frame(fr.image, CAM, cfg, prior=prior, rng=np.random.default_rng(1))
         a, b = with_filter.record("earth"), without.record("earth")
         if psi_deg > cfg.earth.gate_deg:
@@ -114,12 +114,12 @@ def test_candidate_rng_depends_on_the_frame_seed_and_the_candidate_only():
     c1 = _candidate([[10, 20], [11, 20], [12, 21]])
     c2 = _candidate([[10, 21], [11, 21], [12, 22]])
     c3 = _candidate([[10, 20], [11, 20], [12, 21], [13, 21]])
-    first = F._candidate_rng(7, c1).integers(0, 1000, 50)
-    F._candidate_rng(7, c2).integers(0, 1000, 500)      # another candidate in between
-    again = F._candidate_rng(7, c1).integers(0, 1000, 50)
+    first = scoring.candidate_rng(7, c1).integers(0, 1000, 50)
+    scoring.candidate_rng(7, c2).integers(0, 1000, 500)      # another candidate in between
+    again = scoring.candidate_rng(7, c1).integers(0, 1000, 50)
     assert np.array_equal(first, again)
     for seed, c in ((7, c2), (7, c3), (8, c1)):
-        assert not np.array_equal(first, F._candidate_rng(seed, c).integers(0, 1000, 50))
+        assert not np.array_equal(first, scoring.candidate_rng(seed, c).integers(0, 1000, 50))
 
 
 def test_spread_indices_is_the_numpy_expression():
@@ -127,11 +127,11 @@ def test_spread_indices_is_the_numpy_expression():
         for k in (2, 3, 16, 100, 512):
             if m > k:
                 ref = np.unique(np.linspace(0, m - 1, k).round().astype(np.int64))
-                assert np.array_equal(F._spread_indices(m, k), ref), (m, k)
+                assert np.array_equal(fitting._spread_indices(m, k), ref), (m, k)
 
 
 def test_pixel_angle_is_np_interp_on_its_table_and_bounds_the_exact_one():
-    """`_pixel_angle` (a kernel on the uniform radius grid) equals np.interp on the table (to a few
+    """`vision.image_geometry.fast_pixel_angle` (a kernel on the uniform radius grid) equals np.interp on the table (to a few
     ulp: the kernel finds the interval by division, np.interp by search), end values beyond the
     grid, NaN for NaN pixels; and it is within 1e-5 of the exact `pixel_angle` relative (measured
     9e-7 over the image: the function is smooth on the table's 256 radii)."""
@@ -139,14 +139,14 @@ def test_pixel_angle_is_np_interp_on_its_table_and_bounds_the_exact_one():
     rng = np.random.default_rng(3)
     uv = np.concatenate([rng.uniform([-50.0, -50.0], [CAM.width + 50.0, CAM.height + 50.0], (4000, 2)),
                          [[CAM.cx, CAM.cy], [np.nan, 5.0], [-1e6, 0.0]]])
-    q, tab, _ = F._pixel_angle_table(CAM)
+    q, tab, _ = image_geometry.pixel_angle_table(CAM)
     r = np.hypot((uv[:, 0] - CAM.cx) / CAM.fx, (uv[:, 1] - CAM.cy) / CAM.fy)
-    got = F._pixel_angle(CAM, uv)
+    got = image_geometry.fast_pixel_angle(CAM, uv)
     np.testing.assert_allclose(got, np.interp(r, q, tab), rtol=1e-14, atol=0.0)
     assert math.isnan(got[-2]) and got[-1] == tab[-1] and got[-3] == tab[0]
     inside = r <= q[-1]
     np.testing.assert_allclose(got[inside], pixel_angle(CAM, uv[inside]), rtol=1e-5)
-    assert F._pixel_angle(CAM, uv[:6].reshape(2, 3, 2)).shape == (2, 3)
+    assert image_geometry.fast_pixel_angle(CAM, uv[:6].reshape(2, 3, 2)).shape == (2, 3)
 
 
 def test_ellipsoid_to_fit_is_the_normalised_linear_map():
@@ -175,7 +175,7 @@ def test_alpha_sensitivity_is_the_normal_equation_solution():
     H = math.cos(alpha) * e + math.sin(alpha) * (np.cos(psi)[:, None] * T[:, 0] + np.sin(psi)[:, None] * T[:, 1])
     A = H @ T
     ref = (T @ np.linalg.solve(A.T @ A, A.T @ np.ones(len(H)))) * (-math.sin(alpha))
-    assert np.allclose(F._alpha_sensitivity(H, e, alpha), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    assert np.allclose(fitting.alpha_sensitivity(H, e, alpha), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("config_kw", [{}, {"gate_deg": 20.0}])
@@ -185,7 +185,7 @@ def test_gate_search_rows_follow_the_configuration(config_kw):
     cfg = F.default_config(CAM.fx)
     tc = dataclasses.replace(cfg.sun, **config_kw)
     pred = _direction(20.0, 60.0)
-    narrow = F.gate_search_rows(CAM, pred, math.radians(cfg.sun.gate_deg + cfg.sun.alpha_max_deg),
+    narrow = image_geometry.gate_search_rows(CAM, pred, math.radians(cfg.sun.gate_deg + cfg.sun.alpha_max_deg),
                                 cfg.sun.detection.search)
-    rows = F.gate_search_rows(CAM, pred, math.radians(tc.gate_deg + tc.alpha_max_deg), tc.detection.search)
+    rows = image_geometry.gate_search_rows(CAM, pred, math.radians(tc.gate_deg + tc.alpha_max_deg), tc.detection.search)
     assert set(narrow.tolist()) <= set(rows.tolist())

@@ -15,7 +15,8 @@ from vision import mask as vmask
 from tests.poses import pose
 from tests.test_frontend import CAM, angle_deg
 from vision.camera import unproject
-from vision.frontend import FramePrior, _pixel_angle, default_config, process_frame
+from vision.frontend import FramePrior, default_config, process_frame
+from vision.image_geometry import fast_pixel_angle
 from vision.limb import LimbEdgeConfig, limb_edge_points, sun_elevation
 
 H_SCALE = 8000.0
@@ -53,11 +54,12 @@ def _heights(x, R, rays_c):
 
 def test_limb_edge_height_does_not_follow_the_exposure(exposures):
     """Exposure x2: the threshold edge climbs by ~H ln 2 = 5.5 km (eq. (2) of vision.limb; > 3.5 km
-    asserted); the half-peak edge in red stays within 1 km at 19.5 +- 1.5 km (the default
-    limb_height_m)."""
+    asserted); the half-peak edge in red stays within 1 km at 19.5 +- 1.5 km (the crossing height
+    with the Sun 35-40 deg high, `LimbOptions.height_m` plus its Sun-path shift)."""
     R, x, sun, frames = exposures
     cfg = default_config(CAM.fx)
-    cfg = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb_fraction=0.0))
+    cfg = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb=dataclasses.replace(cfg.earth.limb,
+                                                                                     fraction=0.0)))
     h_thr, h_limb = [], []
     for k, fr, img in frames:
         res = process_frame(img, CAM, cfg, prior=FramePrior(x, R))
@@ -65,7 +67,7 @@ def test_limb_edge_height_does_not_follow_the_exposure(exposures):
         uv = te.points[te.inlier_mask]
         rays = unproject(CAM, uv)
         h_thr.append(float(np.median(_heights(x, R, rays))))
-        _, rn, ok = limb_edge_points(img, CAM, uv, rays, fr.e_c_earth, _pixel_angle(CAM, uv), LimbEdgeConfig())
+        _, rn, ok = limb_edge_points(img, CAM, uv, rays, fr.e_c_earth, fast_pixel_angle(CAM, uv), LimbEdgeConfig())
         assert ok.mean() > 0.8
         assert np.all(sun_elevation(rn[ok] @ R.T, x, sun) > math.radians(20.0))
         h_limb.append(float(np.median(_heights(x, R, rn[ok]))))
@@ -120,14 +122,15 @@ def test_bilinear_gather_equals_cv2_remap_of_the_float_plane():
 
 def test_profile_kernel_equals_the_array_version():
     """`vision.limb._limb_profiles` (one pass per profile, samples up to the first drop, tone curve
-    at a few samples) against the former all-sample array version
-    `_profile_crossings_reference`, on a synthetic frame of limb-like profiles (exponential tail
+    at a few samples) against the all-sample array version
+    `tests.vision_reference.profile_crossings_reference`, on a synthetic frame of limb-like profiles (exponential tail
     into space, a maximum, a drop onto the surface) with noise, clipped maxima, profiles without
     a drop, profiles crossing the image border, NaN normals; red, channel mean and a grey frame.
     Same usable set; crossings equal to the float32 rounding of the tone curve (numpy's SIMD
     float32 power and libm's powf differ by 1 ulp ~ 1.2e-7 relative; at the crossing slope of
     these profiles that is < 1e-4 px)."""
-    from vision.limb import _profile_crossings, _profile_crossings_reference
+    from tests.vision_reference import profile_crossings_reference
+    from vision.limb import _profile_crossings
 
     rng = np.random.default_rng(5)
     h, w = 160, 240
@@ -158,7 +161,7 @@ def test_profile_kernel_equals_the_array_version():
     for image, ch in ((img, 2), (img, -1), (img[..., 1].copy(), 0)):
         cfg = LimbEdgeConfig(channel=ch)
         sc, ok = _profile_crossings(image, uv, n, s, cfg)
-        sc_r, ok_r = _profile_crossings_reference(image, uv, n, s, cfg)
+        sc_r, ok_r = profile_crossings_reference(image, uv, n, s, cfg)
         assert np.array_equal(ok, ok_r)
         assert np.max(np.abs(sc[ok] - sc_r[ok])) < 1e-4
         assert 0 < ok.sum() < ok.size - 20    # usable and unusable profiles both present
@@ -190,7 +193,8 @@ def test_flank_heights_of_a_clipped_limb_against_the_truth(clipped):
     from vision.limb import flank_heights
     R, x, sun, frames = clipped
     cfg = default_config(CAM.fx)
-    cfg = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb_fraction=0.0))
+    cfg = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb=dataclasses.replace(cfg.earth.limb,
+                                                                                     fraction=0.0)))
     h_thr = []
     for k, fr, img in frames:
         te = process_frame(img, CAM, cfg, prior=FramePrior(x, R)).targets["earth"]
@@ -198,8 +202,8 @@ def test_flank_heights_of_a_clipped_limb_against_the_truth(clipped):
         rays = unproject(CAM, uv)
         truth = _heights(x, R, rays)
         h_thr.append(float(np.median(truth)))
-        assert np.mean(limb_edge_points(img, CAM, uv, rays, fr.e_c_earth, _pixel_angle(CAM, uv), LimbEdgeConfig())[2]) < 0.1
-        h = flank_heights(img, CAM, uv, rays, fr.e_c_earth, _pixel_angle(CAM, uv), R, x, sun, LimbEdgeConfig())
+        assert np.mean(limb_edge_points(img, CAM, uv, rays, fr.e_c_earth, fast_pixel_angle(CAM, uv), LimbEdgeConfig())[2]) < 0.1
+        h = flank_heights(img, CAM, uv, rays, fr.e_c_earth, fast_pixel_angle(CAM, uv), R, x, sun, LimbEdgeConfig())
         ok = np.isfinite(h)
         assert ok.mean() > 0.8, (k, ok.mean())
         err = np.abs(h[ok] - truth[ok])
@@ -211,10 +215,11 @@ def test_flank_heights_of_a_clipped_limb_against_the_truth(clipped):
 def test_nadir_of_a_clipped_limb_from_the_flank_fit(clipped):
     """Through the whole front end (defaults, Sun direction in the prior): the clipped frames take
     the flank path and their nadir error is < 0.05 deg at all three exposures, inside 3 sigma; with the
-    flank fit off (``limb_flank_profiles = 0``) the threshold edge's error is larger."""
+    flank fit off (``limb.flank.profiles = 0``) the threshold edge's error is larger."""
     R, x, sun, frames = clipped
     cfg = default_config(CAM.fx)
-    off = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb_flank_profiles=0))
+    off = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb=dataclasses.replace(
+        cfg.earth.limb, flank=dataclasses.replace(cfg.earth.limb.flank, profiles=0))))
     sun_c = R.T @ (sun / np.linalg.norm(sun))
     for k, fr, img in frames:
         res = process_frame(img, CAM, cfg, prior=FramePrior(x, R, sun_c=sun_c))
@@ -265,7 +270,7 @@ def test_limb_near_the_sun_with_the_phase_slope():
     on the side the camera looks): the aerosol lobe of the phase function brightens the limb
     profiles inwards on part of the arc, which moves their maximum against their crossing and
     tilts the fit. With the phase function's change along each profile divided out
-    (`limb_aerosol_weight` = the renderer's 0.25) the error is smaller than with a Rayleigh-only
+    (`LimbOptions.aerosol_weight` = the renderer's 0.25) the error is smaller than with a Rayleigh-only
     phase function (measured 0.073 against 0.096 deg; the same frame rendered without the aerosol
     lobe: 0.042)."""
     from nav import ephemeris
@@ -284,7 +289,7 @@ def test_limb_near_the_sun_with_the_phase_slope():
     sun_c = r.R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e)
     errs = {}
     for w in (0.0, opts.aerosol_weight):
-        c = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb_aerosol_weight=w))
+        c = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb=dataclasses.replace(cfg.earth.limb, aerosol_weight=w)))
         res = process_frame(img, cam, c, mask=mask, prior=FramePrior(r.x_e, r.R_ec, sun_c=sun_c))
         assert res.targets["earth"].limb_path == "limb", res.targets["earth"].limb_path
         errs[w] = angle_deg(res.record("earth").e_c, fr.e_c_earth)

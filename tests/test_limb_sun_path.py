@@ -12,7 +12,7 @@ import pytest
 
 from nav import earth
 from scenarios.sim import render
-from vision.frontend import TargetConfig
+from vision.config import LimbOptions
 from vision.limb import fraction_height_shift, profile_height_shift, sun_elevation, sun_path_ratio
 
 
@@ -85,15 +85,15 @@ def test_sun_elevation_at_the_tangent_point(lat_deg, el_deg):
 
 
 def test_twilight_table_validation():
-    base = TargetConfig()
-    with pytest.raises(ValueError, match="limb_twilight_el_deg"):
-        dataclasses.replace(base, limb_twilight_el_deg=(0.0, 1.0), limb_twilight_dh_m=(1.0,))
-    with pytest.raises(ValueError, match="limb_twilight_el_deg"):
-        dataclasses.replace(base, limb_twilight_el_deg=(1.0, 0.0), limb_twilight_dh_m=(1.0, 2.0))
-    with pytest.raises(ValueError, match="limb_scale_height_m"):
-        dataclasses.replace(base, limb_scale_height_m=0.0)
-    with pytest.raises(ValueError, match="limb_min_sun_elev_deg"):
-        dataclasses.replace(base, limb_min_sun_elev_deg=-20.0)
+    base = LimbOptions()
+    with pytest.raises(ValueError, match="LimbOptions.twilight_el_deg"):
+        dataclasses.replace(base, twilight_el_deg=(0.0, 1.0), twilight_dh_m=(1.0,))
+    with pytest.raises(ValueError, match="LimbOptions.twilight_el_deg"):
+        dataclasses.replace(base, twilight_el_deg=(1.0, 0.0), twilight_dh_m=(1.0, 2.0))
+    with pytest.raises(ValueError, match="LimbOptions.scale_height_m"):
+        dataclasses.replace(base, scale_height_m=0.0)
+    with pytest.raises(ValueError, match="LimbOptions.min_sun_elev_deg"):
+        dataclasses.replace(base, min_sun_elev_deg=-20.0)
 
 
 def _render_params(H=8000.0, R=6371e3):

@@ -15,7 +15,8 @@ import cv2
 import numpy as np
 
 from vision.camera import FisheyeCamera, project
-from vision.frontend import FrameResult, conic_polyline
+from vision.image_geometry import conic_polyline
+from vision.results import FrameResult
 
 __all__ = ["annotate_frame"]
 

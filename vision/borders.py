@@ -10,7 +10,8 @@ touch the image border or the payload mask (003 §3.1: the Earth is never fully 
 or cross one of the search lines (003 §5: ellipses fully inside the image). Small enclosed blobs
 (clouds) that neither touch the border nor cross a line are never examined (003 fig. 10). With a
 search line on every row the result is exactly OpenCV's ``findContours(RETR_EXTERNAL,
-CHAIN_APPROX_NONE)`` (`find_borders_reference`), which is Suzuki & Abe (1985) (003 ref. [33]).
+CHAIN_APPROX_NONE)`` (tests/vision_reference.py compares them), which is Suzuki & Abe (1985)
+(003 ref. [33]).
 
 Search lines (003 §5): rows spaced ``2 l = 2 b^2 / a = 2 f tan(alpha)`` (`search_line_spacing`),
 l the semi-latus rectum of the smallest ellipse to be found, so that every ellipse of at least that
@@ -49,7 +50,6 @@ import math
 import threading
 from dataclasses import dataclass
 
-import cv2
 import numba
 import numpy as np
 
@@ -65,7 +65,6 @@ __all__ = [
     "search_line_spacing",
     "search_rows",
     "find_borders",
-    "find_borders_reference",
 ]
 
 SEED_RING, SEED_MASK, SEED_LINE = 0, 1, 2
@@ -93,17 +92,23 @@ class SearchConfig:
     line_offset_px : row of the first line; None centres the raster (first row = spacing / 2).
     max_points : limit on the number of followed border pixels (all borders); beyond it the search
         stops and reports an overflow (a frame of noise, not a horizon).
+    alpha_min_deg : smallest apparent radius [deg] of the body the lines are spaced for: when
+        ``line_spacing_px`` is None, `vision.config.resolve_search_lines` sets it to
+        ``2 f tan(alpha_min)`` with the camera's focal length f (003 §5). None: no such spacing.
     """
 
     line_spacing_px: float | None = None
     line_offset_px: float | None = None
     max_points: int = 2_000_000
+    alpha_min_deg: float | None = None
 
     def __post_init__(self):
         if self.line_spacing_px is not None and not (self.line_spacing_px >= 1.0):
             raise ValueError(f"SearchConfig.line_spacing_px: {self.line_spacing_px}, expected >= 1 px or None")
         if self.max_points < 1:
             raise ValueError(f"SearchConfig.max_points: {self.max_points}, expected >= 1")
+        if self.alpha_min_deg is not None and not 0.0 < self.alpha_min_deg < 90.0:
+            raise ValueError(f"SearchConfig.alpha_min_deg: {self.alpha_min_deg}, expected 0 < alpha < 90 deg or None")
 
 
 def search_line_spacing(focal_px: float, alpha: float, scale: float = 1.0) -> float:
@@ -295,7 +300,7 @@ def _follow_steps(img, tsum, pen, state, v0, u0, v1, u1, buf, max_points, walk):
 def _search(img, tsum, pen, state, seed_v, seed_u, seed_d, rows, max_points, follow):  # pragma: no cover
     """The search of `find_borders` with the all-zero (H, W) ``state`` (the marks of border
     following); the marks are cleared again before returning, so that the caller can keep the
-    array for the next frame (allocating and zeroing 2 MB per call cost ~20-40 us)."""
+    array for the next frame instead of allocating and zeroing 2 MB per call."""
     pts, offsets, kinds, counts, status = _search_marked(img, tsum, pen, state, seed_v, seed_u, seed_d, rows,
                                                          max_points, follow)
     for i in range(pts.shape[0]):
@@ -471,37 +476,3 @@ def _take_state(h: int, w: int) -> np.ndarray:
     if st is None or st.shape != (h, w):
         st = np.zeros((h, w), np.uint8)
     return st
-
-
-def find_borders_reference(binary, mask: PayloadMask | None = None, rows=None) -> Borders:
-    """The same borders from OpenCV's ``findContours(RETR_EXTERNAL, CHAIN_APPROX_NONE)`` on the
-    whole binary image (Suzuki & Abe, every pixel examined), kept if they touch the image border,
-    lie next to the mask or have a pixel on a search row. Reference and benchmark baseline.
-
-    ``binary``: (H, W) uint8, nonzero = white; masked pixels are set to black first.
-    """
-    b = np.asarray(binary)
-    if b.ndim != 2 or b.dtype != np.uint8:
-        raise ValueError(f"binary: shape {b.shape} dtype {b.dtype}, expected (H, W) uint8")
-    h, w = b.shape
-    rows = np.zeros(0, np.int64) if rows is None else np.asarray(rows, np.int64).ravel()
-    if mask is not None:
-        mask.check(b.shape)
-        b = np.where(mask.mask, 0, b).astype(np.uint8)
-        near_mask = np.zeros((h, w), np.bool_)
-        near_mask[mask.seed_v, mask.seed_u] = True
-    contours, _ = cv2.findContours(b, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    on_row = np.zeros(h, np.bool_)
-    on_row[rows] = True
-    keep = []
-    for c in contours:
-        p = c.reshape(-1, 2)
-        u, v = p[:, 0], p[:, 1]
-        hit = (u.min() == 0 or v.min() == 0 or u.max() == w - 1 or v.max() == h - 1
-               or on_row[v].any() or (mask is not None and near_mask[v, u].any()))
-        if hit:
-            keep.append(p.astype(np.int32))
-    lens = np.array([len(p) for p in keep], np.int64)
-    offs = np.concatenate(([0], np.cumsum(lens))).astype(np.int64)
-    pts = np.concatenate(keep) if keep else np.zeros((0, 2), np.int32)
-    return Borders(pts, offs, np.full(len(keep), -1, np.int8), rows, (h, w))

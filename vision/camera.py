@@ -44,6 +44,8 @@ from typing import Any, Mapping, Sequence
 import numba
 import numpy as np
 
+from vision._kernels import poly1, project1
+
 __all__ = [
     "FisheyeCamera",
     "MODEL_NAME",
@@ -243,7 +245,7 @@ def _rtable(camera: FisheyeCamera) -> tuple[float, np.ndarray, np.ndarray]:
     tab = _RTABLES.get(key)
     if tab is None:
         r = np.linspace(0.0, camera.max_radius, _TABLE_SIZE)
-        th = _inverse_radial_reference(camera, r)
+        th = _inverse_radial_bracketed(camera, r)
         th[-1] = camera.max_theta
         th = np.maximum.accumulate(th)
         d = _dpoly(np.asarray(camera.k), th)
@@ -270,9 +272,10 @@ def inverse_radial(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
     return out.reshape(r_in.shape)
 
 
-def _inverse_radial_reference(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
-    """The same inverse with all elements iterated together in numpy (the reference the kernel is
-    tested against, tests/test_camera.py)."""
+def _inverse_radial_bracketed(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndarray:
+    """The same inverse with all elements iterated together in numpy: Newton steps inside a
+    bisection bracket from the coarse table's interpolation, to 1e-13 rad (`_rtable` builds the
+    kernels' table with it; tests/test_camera.py checks the kernel against it)."""
     r_in = np.asarray(r_d, dtype=float)
     r = r_in.ravel()
     k = np.asarray(camera.k)
@@ -300,21 +303,10 @@ def _inverse_radial_reference(camera: FisheyeCamera, r_d: np.ndarray) -> np.ndar
 
 
 # ----------------------------------------------------------------------------------------------
-# numba kernels: the per-pixel work of unproject / unproject_jacobian / project in one pass. The
-# numpy versions made ~40 array passes (Horner, Newton iterations, where/stack) over arrays of a
-# few hundred edge pixels per call, several calls per frame (~0.1 ms each, most of it per-call
-# overhead); the kernels are one loop with the same formulas.
-
-
-@numba.njit(cache=True, nogil=True)
-def _poly1(k, t):  # pragma: no cover - numba
-    """r_d(theta) for one theta, the Horner scheme of `_poly` (same arithmetic)."""
-    t2 = t * t
-    n = k.shape[0]
-    acc = k[n - 1]
-    for i in range(n - 2, -1, -1):
-        acc = acc * t2 + k[i]
-    return acc * t
+# numba kernels: the per-pixel work of unproject / unproject_jacobian / project in one pass, with
+# the formulas of the array versions (tests/vision_reference.py), which take ~40 array passes
+# (Horner, Newton iterations, where/stack) over a few hundred edge pixels per call, several calls
+# per frame: mostly per-call overhead.
 
 
 @numba.njit(cache=True, nogil=True)
@@ -361,7 +353,7 @@ def _inverse_radial_kernel(r, k, inv_dr, th_tab, sl_tab, max_radius):  # pragma:
         lo -= 1e-14
         hi += 1e-14
         for _ in range(100):
-            f = _poly1(k, theta) - ri
+            f = poly1(k, theta) - ri
             df = _dpoly1(k, theta)
             if f < 0.0:
                 lo = max(lo, theta)
@@ -435,17 +427,7 @@ def _project_kernel(p, fx, fy, cx, cy, k, max_theta):  # pragma: no cover - numb
     n = p.shape[0]
     uv = np.empty((n, 2))
     for i in range(n):
-        x, y, z = p[i, 0], p[i, 1], p[i, 2]
-        rho = math.hypot(x, y)
-        theta = math.atan2(rho, z)
-        if theta > max_theta or (rho == 0.0 and z <= 0.0):
-            uv[i, 0] = math.nan
-            uv[i, 1] = math.nan
-            continue
-        r_d = _poly1(k, theta)
-        scale = r_d / rho if rho > 0.0 else 0.0
-        uv[i, 0] = cx + fx * scale * x
-        uv[i, 1] = cy + fy * scale * y
+        uv[i, 0], uv[i, 1] = project1(p[i, 0], p[i, 1], p[i, 2], fx, fy, cx, cy, k, max_theta)
     return uv
 
 
@@ -467,33 +449,11 @@ def project(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
     return uv.reshape(p.shape[:-1] + (2,))
 
 
-def _project_reference(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
-    """`project` in numpy (the reference the kernel is tested against)."""
-    p = np.asarray(rays_c, dtype=float)
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    rho = np.hypot(x, y)
-    theta = np.arctan2(rho, z)
-    r_d = _poly(np.asarray(camera.k), theta)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(rho > 0.0, r_d / rho, 0.0)
-    u = camera.cx + camera.fx * scale * x
-    v = camera.cy + camera.fy * scale * y
-    bad = (theta > camera.max_theta) | ((rho == 0.0) & (z <= 0.0))
-    uv = np.stack([u, v], axis=-1)
-    uv[bad] = np.nan
-    return uv
-
-
 def _pixels(uv: np.ndarray) -> np.ndarray:
     uv = np.asarray(uv, dtype=float)
     if uv.shape[-1] != 2:
         raise ValueError(f"unproject: uv must have shape (..., 2), got {uv.shape}")
     return uv
-
-
-def _normalised(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    uv = _pixels(uv)
-    return (uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy
 
 
 def _unproject(camera: FisheyeCamera, uv: np.ndarray, jac: bool):
@@ -514,17 +474,6 @@ def unproject(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
     ray = [sin(theta) q / r_d, cos(theta)] (one numba pass, `_unproject_kernel`).
     """
     return _unproject(camera, uv, False)[0]
-
-
-def _unproject_reference(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
-    """`unproject` in numpy with `_inverse_radial_reference` (the reference for the tests)."""
-    xd, yd = _normalised(camera, uv)
-    r_d = np.hypot(xd, yd)
-    theta = _inverse_radial_reference(camera, r_d)
-    st = np.sin(theta)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(r_d > 0.0, st / r_d, 0.0)
-    return np.stack([s * xd, s * yd, np.cos(theta)], axis=-1)
 
 
 def unproject_jacobian(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

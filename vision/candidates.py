@@ -95,19 +95,9 @@ _NO_FRAME = np.zeros((1, 1), np.bool_)
 
 
 @numba.njit(cache=True, nogil=True)
-def _pieces(pts, off, frame, use_frame, h, w, min_length):  # pragma: no cover - numba
-    """The candidate pieces of the concatenated border chains, in one pass (the numpy version, a
-    frame lookup, diff, cumsum and shifted comparisons over all ~10^4 border pixels plus a dozen
-    small-array steps, took ~0.3 ms per frame).
-
-    A run is a maximal sequence of interior pixels (not on the frame: ``frame[v, u]`` with a mask,
-    else the image edge ring) within one border. A run covering its whole border is closed; a
-    border's last run ending at the chain end continues with its first run starting at the chain
-    start (the chain is a cycle). Returns, for the pieces of at least ``min_length`` pixels in
-    chain order: info (k, 7) int64 = start, end (exclusive), start and end of the joined head run
-    (-1, -1 if none), border, index of the frame pixel before the start and after the end (-1 for
-    a closed piece); the arc length (k,) [px] (steps of 1 or sqrt 2; closed: plus the closing step;
-    joined: plus the step across the chain start); and the longest piece (kept or not)."""
+def _runs(pts, off, frame, use_frame, h, w):  # pragma: no cover - numba
+    """The interior runs of `_pieces`: cumulative arc length cs (n,) [px] along the chain (steps
+    of 1 or sqrt 2), run starts rs, ends re (exclusive) and borders rb (the first nr entries)."""
     n = pts.shape[0]
     nb = off.shape[0] - 1
     cs = np.empty(n)
@@ -141,6 +131,24 @@ def _pieces(pts, off, frame, use_frame, h, w, min_length):  # pragma: no cover -
         if in_run:
             re[nr] = off[b + 1]
             nr += 1
+    return cs, rs, re, rb, nr
+
+
+@numba.njit(cache=True, nogil=True)
+def _pieces(pts, off, frame, use_frame, h, w, min_length):  # pragma: no cover - numba
+    """The candidate pieces of the concatenated border chains, in one pass over the ~10^4 border
+    pixels (`_runs`) and one over the runs, instead of a frame lookup, diff, cumsum and shifted
+    comparisons over all of them plus a dozen small-array steps.
+
+    A run is a maximal sequence of interior pixels (not on the frame: ``frame[v, u]`` with a mask,
+    else the image edge ring) within one border. A run covering its whole border is closed; a
+    border's last run ending at the chain end continues with its first run starting at the chain
+    start (the chain is a cycle). Returns, for the pieces of at least ``min_length`` pixels in
+    chain order: info (k, 7) int64 = start, end (exclusive), start and end of the joined head run
+    (-1, -1 if none), border, index of the frame pixel before the start and after the end (-1 for
+    a closed piece); the arc length (k,) [px] (steps of 1 or sqrt 2; closed: plus the closing step;
+    joined: plus the step across the chain start); and the longest piece (kept or not)."""
+    cs, rs, re, rb, nr = _runs(pts, off, frame, use_frame, h, w)
     info = np.empty((nr, 7), np.int64)
     arc = np.empty(nr)
     k = 0

@@ -104,8 +104,9 @@ def _normal_matrices(H, J, n, rho):
     """(A^T T A + B^T T B, H^T H) for `direction_covariance` in one pass over the m rows: with
     g_j = -n^T J_j (003 eq. (32) on the unit sphere), a_j = g_j,u h_j, b_j = g_j,v h_j (rows of
     A, B) and T_jk = rho^|j-k| applied by the forward and backward AR(1) recursions of
-    `_ar1_apply_2d` (T X = F X + B X - X). Replaces an einsum, a concatenation, the recursions and
-    three small matrix products (~10 numpy calls on (m, 6) arrays, m <= 512, per target and frame)."""
+    `_ar1_apply_2d` (T X = F X + B X - X): one pass instead of an einsum, a concatenation, the
+    recursions and three small matrix products (~10 numpy calls on (m, 6) arrays, m <= 512, per
+    target and frame)."""
     m = H.shape[0]
     AB = np.empty((m, 6))
     N = np.zeros((3, 3))

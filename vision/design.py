@@ -98,7 +98,7 @@ import numpy as np
 from nav import earth
 from vision.camera import FisheyeCamera, from_fov, project, unproject_jacobian
 from vision.covariance import ar1_toeplitz_apply, direction_covariance
-from vision.error_model import _camera_keep, trace_limb
+from vision.error_model import camera_keep, trace_limb
 
 __all__ = [
     "visibility_thresholds",
@@ -271,7 +271,7 @@ def horizon_points(case: SensitivityCase, e_c: np.ndarray | None = None):
         arcs = trace_limb(e, alpha, cam.project, cam.keep, case.step_px)
     else:
         cam = _fisheye_for(case)
-        arcs = trace_limb(e, alpha, lambda r: project(cam, r), _camera_keep(cam, None), case.step_px)
+        arcs = trace_limb(e, alpha, lambda r: project(cam, r), camera_keep(cam, None), case.step_px)
     uv = arcs[0][0] if arcs else np.zeros((0, 2))
     return uv, cam, alpha
 

@@ -171,7 +171,9 @@ def trace_limb(e_c: np.ndarray, alpha: float, project_fn: Callable[[np.ndarray],
     return out
 
 
-def _camera_keep(camera: FisheyeCamera, mask: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
+def camera_keep(camera: FisheyeCamera, mask: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
+    """Test of pixels (k, 2): inside the image and, with a payload ``mask`` (H, W; True =
+    payload), off the mask."""
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape != (camera.height, camera.width):
@@ -216,7 +218,7 @@ def predicted_limb_pixels(camera: FisheyeCamera, e_c: np.ndarray, alpha: float,
     """
     if arcs not in ("longest", "all"):
         raise ValueError(f"arcs = {arcs!r}; expected 'longest' or 'all'")
-    found = trace_limb(e_c, alpha, lambda r: project(camera, r), _camera_keep(camera, mask), step_px)
+    found = trace_limb(e_c, alpha, lambda r: project(camera, r), camera_keep(camera, mask), step_px)
     if arcs == "all":
         return [a[0] for a in found]
     return found[0][0] if found else np.zeros((0, 2))
@@ -287,10 +289,10 @@ def predict_vision(camera: FisheyeCamera, e_c: np.ndarray, alpha: float,
     e = _unit(e_c)
     alpha = _check_alpha(alpha)
     _, kind = conic_type(e, alpha)
-    found = trace_limb(e, alpha, lambda r: project(camera, r), _camera_keep(camera, mask), step_px)
+    found = trace_limb(e, alpha, lambda r: project(camera, r), camera_keep(camera, mask), step_px)
     if not found:
         if mask is not None:
-            unmasked = trace_limb(e, alpha, lambda r: project(camera, r), _camera_keep(camera, None),
+            unmasked = trace_limb(e, alpha, lambda r: project(camera, r), camera_keep(camera, None),
                                   step_px)
             if unmasked:
                 return VisionPrediction(np.zeros((0, 2)), None,

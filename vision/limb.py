@@ -65,9 +65,9 @@ Near the terminator c changes by ``exp(R mu dmu / H)`` over the profile, which m
 and the crossing by kilometres. `profile_height_shift` finds the crossing on (4) with that mu(h)
 and the Earth's shadow by the detector's rules; tau, which then no longer cancels, follows from
 the overhead-Sun height h_f(1) by (5). On rendered twilight frames the tangent heights of the
-crossings then agree with it to 0.1-0.3 km per frame (eq. (5) alone: 1-3.5 km), and the nadir
-RMS of the limb-edge frames fell from 0.110 to 0.048 deg (docs/vision.md). It replaces the
-measured twilight table (`TargetConfig.limb_twilight_*`, now empty by default).
+crossings then agree with it to 0.1-0.3 km per frame (eq. (5) alone: 1-3.5 km; docs/vision.md).
+With it no measured twilight correction is needed (`vision.config.LimbOptions.twilight_el_deg`
+and ``twilight_dh_m`` hold one when wanted; empty by default).
 """
 from __future__ import annotations
 
@@ -133,7 +133,7 @@ def _bilinear(image: np.ndarray, channel: int, qx: np.ndarray, qy: np.ndarray) -
     BORDER_CONSTANT, -1)`` on the float32 plane (exact bilinear weights; neighbours outside the
     image count as -1; equal to it to float32 round-off, tests/test_limb.py), gathered from the
     four neighbours of each sample only instead of converting the whole frame to float32 first
-    (~0.9 ms for 1920 x 1080 against ~0.1 ms for the ~3e4 samples of a limb)."""
+    (a limb has ~3e4 samples, a 1920 x 1080 frame 2e6 pixels)."""
     img = image if image.ndim == 3 else image[:, :, None]
     ch = -1 if (channel < 0 and img.shape[2] > 1) else (0 if img.shape[2] == 1 else channel)
     out = np.empty(qx.shape, dtype=np.float32)
@@ -229,8 +229,8 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     (k <= i0), scan inwards from i0 to the first sample below ``keep`` (= 1 - min_drop) times the
     running maximum (the stop; none: unusable), ``peak`` = the maximum before it, ``jpk`` its first
     index, the last sample before jpk below ``tgt = bg + fraction (peak - bg)``, and the linear
-    crossing between it and the next one. Why a kernel: the tone curve (a float32 power) on all
-    ~34 000 samples of a 512-pixel limb and ~30 array passes cost ~1.2 ms per frame; here samples
+    crossing between it and the next one. Why a kernel: the array version evaluates the tone curve
+    (a float32 power) on all ~34 000 samples of a 512-pixel limb in ~30 array passes; here samples
     are taken only up to the stop (all of them only when the profile's end points are not
     safely inside the image, where the "inside" test needs every sample) and, the tone curve
     being monotone, the running maximum, the background and most of the drop tests use the
@@ -245,13 +245,10 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     stays on the raw samples; 0: the samples as they are."""
     m = uv.shape[0]
     S = s.shape[0]
-    h, w, _ = img.shape
     sc = np.zeros(m)
     ok = np.zeros(m, np.bool_)
     c = np.empty(S, np.float32)          # clipped samples, 0..taken-1 (phase-corrected)
     f = np.empty(S, np.float32)          # their phase factors
-    eps = np.float32(1e-6)
-    lo_m, hi_m = 1.0 - 1e-3, 1.0 + 1e-3
     for i in range(m):
         u, v, nx, ny = uv[i, 0], uv[i, 1], nrm[i, 0], nrm[i, 1]
         if not (math.isfinite(nx) and math.isfinite(ny)):
@@ -262,130 +259,122 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
         # is set as sample k is taken (in order of k; most profiles stop well before the end)
         fk = math.exp(-b * s[0])
         rk = math.exp(-b * (s[1] - s[0])) if S > 1 else 1.0
-        xa, ya = _q32(u, s[0], nx), _q32(v, s[0], ny)
-        xb, yb = _q32(u, s[S - 1], nx), _q32(v, s[S - 1], ny)
-        safe = (0.5 <= xa <= w - 1.5 and 0.5 <= xb <= w - 1.5 and 0.5 <= ya <= h - 1.5
-                and 0.5 <= yb <= h - 1.5)
-        taken = 0
-        if not (safe and ch >= 0):
-            # near the border (every sample decides "inside": all >= 0) or the channel mean: all
-            # samples with the general `_bilinear1` (rare; the scan below then samples nothing)
-            inside = True
-            for k in range(S):
-                val = np.float32(_bilinear1(img, ch, _q32(u, s[k], nx), _q32(v, s[k], ny)))
-                if not val >= 0.0:
-                    inside = False
-                    break
-                f[k] = np.float32(fk)
-                fk *= rk
-                c[k] = min(val, np.float32(255.0)) * f[k]
-            if not inside:
-                continue
-            taken = S
-        for k in range(taken, i0 + 1):
+        taken, fk = _take_space_samples(img, ch, u, v, nx, ny, s, i0, c, f, fk, rk)
+        if taken < 0:
+            continue
+        stop, vmax, cmin = _scan_to_drop(img, ch, u, v, nx, ny, s, i0, c, f, fk, rk, taken, gamma, keep,
+                                         root_keep)
+        if stop < 0:
+            continue                      # no drop after the maximum: surface merges with the limb
+        sc[i], ok[i] = _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip)
+    return sc, ok
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _take_space_samples(img, ch, u, v, nx, ny, s, i0, c, f, fk, rk):
+    """Samples 0..i0 (space) of one profile of `_limb_profiles` into c (phase-corrected, clipped
+    to 255) and their phase factors into f, fk the running factor (times rk per step). Profiles
+    whose end points are not safely inside the image, or the channel mean (ch < 0), take all
+    samples with the general `_bilinear1` (every sample decides "inside"). Returns (samples
+    taken, fk), taken = -1 when a sample is outside the image."""
+    S = s.shape[0]
+    h, w, _ = img.shape
+    xa, ya = _q32(u, s[0], nx), _q32(v, s[0], ny)
+    xb, yb = _q32(u, s[S - 1], nx), _q32(v, s[S - 1], ny)
+    safe = (0.5 <= xa <= w - 1.5 and 0.5 <= xb <= w - 1.5 and 0.5 <= ya <= h - 1.5
+            and 0.5 <= yb <= h - 1.5)
+    taken = 0
+    if not (safe and ch >= 0):
+        for k in range(S):
+            val = np.float32(_bilinear1(img, ch, _q32(u, s[k], nx), _q32(v, s[k], ny)))
+            if not val >= 0.0:
+                return -1, fk
+            f[k] = np.float32(fk)
+            fk *= rk
+            c[k] = min(val, np.float32(255.0)) * f[k]
+        taken = S
+    for k in range(taken, i0 + 1):
+        f[k] = np.float32(fk)
+        fk *= rk
+        c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
+    return max(taken, i0 + 1), fk
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _scan_to_drop(img, ch, u, v, nx, ny, s, i0, c, f, fk, rk, taken, gamma, keep, root_keep):
+    """Inward scan of one profile of `_limb_profiles` from i0: running maximum (clipped samples),
+    first sample below ``keep`` times it in tone-curve units (the tone evaluated only within 0.1 %
+    of the bound ``root_keep`` times the maximum), samples taken as needed. Returns (stop index or
+    -1, maximum, background = min of the space samples 0..i0)."""
+    S = s.shape[0]
+    lo_m, hi_m = 1.0 - 1e-3, 1.0 + 1e-3
+    cmin = c[0]
+    for k in range(1, i0 + 1):
+        cmin = min(cmin, c[k])
+    vmax = c[i0]
+    L_max = np.float32(-1.0)   # tone of vmax, when evaluated
+    bound = vmax * root_keep
+    for k in range(i0, S):
+        if k >= taken:
             f[k] = np.float32(fk)
             fk *= rk
             c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
-        taken = max(taken, i0 + 1)
-        cmin = c[0]
-        for k in range(1, i0 + 1):
-            cmin = min(cmin, c[k])
-        # inward scan: running maximum (raw), first drop below keep * max (tone-curve units)
-        vmax = c[i0]
-        L_max = np.float32(-1.0)   # tone of vmax, when evaluated
-        bound = vmax * root_keep
-        stop = -1
-        for k in range(i0, S):
-            if k >= taken:
-                f[k] = np.float32(fk)
-                fk *= rk
-                c[k] = _sample_inside(img, ch, u, v, s[k], nx, ny) * f[k]
-                taken = k + 1
-            ck = c[k]
-            if ck > vmax:
-                vmax = ck
-                L_max = np.float32(-1.0)
-                bound = vmax * root_keep
-                continue
-            if ck < bound * lo_m:
-                stop = k
-                break
-            if ck > bound * hi_m:
-                continue
-            if L_max < 0.0:
-                L_max = _tone(vmax, gamma)
-            if _tone(ck, gamma) < keep * L_max:
-                stop = k
-                break
-        if stop < 0:
-            continue                      # no drop after the maximum: surface merges with the limb
-        peak = _tone(vmax, gamma)
-        bg = _tone(cmin, gamma)
-        raw = np.float32(0.0)              # the clip test on the raw samples
-        for k in range(i0, stop + 1):
-            raw = max(raw, c[k] / f[k])
-        if not (_tone(raw, gamma) < clip and peak > bg + eps):
+            taken = k + 1
+        ck = c[k]
+        if ck > vmax:
+            vmax = ck
+            L_max = np.float32(-1.0)
+            bound = vmax * root_keep
             continue
-        jpk = -1
-        for k in range(i0, stop + 1):
-            if c[k] >= vmax * lo_m and _tone(c[k], gamma) >= peak:
-                jpk = k
-                break
-        tgt = bg + fraction * (peak - bg)
-        a = -1
-        t_raw = 255.0 * float(tgt) ** (1.0 / float(gamma))    # tgt on the clipped-sample scale
-        for k in range(jpk - 1, -1, -1):
-            if c[k] > t_raw * hi_m:
-                continue
-            if c[k] < t_raw * lo_m or _tone(c[k], gamma) < tgt:
-                a = k
-                break
-        if a < 0:
+        if ck < bound * lo_m:
+            return k, vmax, cmin
+        if ck > bound * hi_m:
             continue
-        a = min(a, S - 2)
-        if not a + 1 <= jpk:
-            continue
-        La, Lb = _tone(c[a], gamma), _tone(c[a + 1], gamma)
-        frac = (tgt - La) / (Lb - La)
-        frac = min(max(frac, np.float32(0.0)), np.float32(1.0))
-        sc[i] = s[a] + frac
-        ok[i] = True
-    return sc, ok
+        if L_max < 0.0:
+            L_max = _tone(vmax, gamma)
+        if _tone(ck, gamma) < keep * L_max:
+            return k, vmax, cmin
+    return -1, vmax, cmin
 
 
-def _profile_crossings_reference(image, uv, n, s, config: LimbEdgeConfig):
-    """`_limb_profiles` as numpy array operations on all samples (the former implementation; the
-    reference tests/test_limb.py checks the kernel against). Returns (sc, ok)."""
-    m = uv.shape[0]
-    Q = uv[:, None, :] + s[None, :, None] * n[:, None, :]
-    Q = np.nan_to_num(Q, nan=-10.0).astype(np.float32)
-    v = _bilinear(image, config.channel, Q[..., 0], Q[..., 1])
-    inside = np.all(v >= 0.0, axis=1) & np.all(np.isfinite(n), axis=1)
-    L = (np.clip(v, 0.0, 255.0) * (1.0 / 255.0)) ** config.gamma
-    i0 = config.space_px
-    Lin = L[:, i0:]
-    rm = np.maximum.accumulate(Lin, axis=1)
-    drop = Lin < (1.0 - config.min_drop) * rm
-    has_drop = drop.any(axis=1)
-    stop = np.where(has_drop, drop.argmax(axis=1), Lin.shape[1] - 1)
-    rows = np.arange(m)
-    peak = rm[rows, stop]
-    reach = (Lin >= peak[:, None]) & (np.arange(Lin.shape[1])[None, :] <= stop[:, None])
-    jpk = reach.argmax(axis=1) + i0
-    bg = np.min(L[:, :i0 + 1], axis=1)
-    clip = (config.clip_level / 255.0) ** config.gamma
-    tgt = bg + config.fraction * (peak - bg)
-    idx = np.arange(L.shape[1])[None, :]
-    below = (L < tgt[:, None]) & (idx < jpk[:, None])
-    found = below.any(axis=1)
-    a = L.shape[1] - 1 - below[:, ::-1].argmax(axis=1)
-    a = np.minimum(a, L.shape[1] - 2)
-    La, Lb = L[rows, a], L[rows, a + 1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.clip((tgt - La) / (Lb - La), 0.0, 1.0)
-    sc = s[a] + frac
-    ok = inside & has_drop & found & (peak < clip) & (peak > bg + 1e-6) & (a + 1 <= jpk)
-    return sc, ok
+@numba.njit(cache=True, error_model="numpy")
+def _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip):
+    """Fraction-of-peak crossing of one scanned profile of `_limb_profiles`: (offset sc [px along
+    the normal], ok). Not ok when the raw peak is clipped, the peak is not above the background,
+    or no sample before the peak lies below the target level."""
+    S = s.shape[0]
+    eps = np.float32(1e-6)
+    lo_m, hi_m = 1.0 - 1e-3, 1.0 + 1e-3
+    peak = _tone(vmax, gamma)
+    bg = _tone(cmin, gamma)
+    raw = np.float32(0.0)              # the clip test on the raw samples
+    for k in range(i0, stop + 1):
+        raw = max(raw, c[k] / f[k])
+    if not (_tone(raw, gamma) < clip and peak > bg + eps):
+        return 0.0, False
+    jpk = -1
+    for k in range(i0, stop + 1):
+        if c[k] >= vmax * lo_m and _tone(c[k], gamma) >= peak:
+            jpk = k
+            break
+    tgt = bg + fraction * (peak - bg)
+    a = -1
+    t_raw = 255.0 * float(tgt) ** (1.0 / float(gamma))    # tgt on the clipped-sample scale
+    for k in range(jpk - 1, -1, -1):
+        if c[k] > t_raw * hi_m:
+            continue
+        if c[k] < t_raw * lo_m or _tone(c[k], gamma) < tgt:
+            a = k
+            break
+    if a < 0:
+        return 0.0, False
+    a = min(a, S - 2)
+    if not a + 1 <= jpk:
+        return 0.0, False
+    La, Lb = _tone(c[a], gamma), _tone(c[a + 1], gamma)
+    frac = (tgt - La) / (Lb - La)
+    frac = min(max(frac, np.float32(0.0)), np.float32(1.0))
+    return s[a] + frac, True
 
 
 def _profile_crossings(image, uv, n, s, config: LimbEdgeConfig, slope=None):
@@ -644,14 +633,14 @@ def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_
     """Height [m] of the fraction-of-peak crossing relative to the Sun overhead (mu_s = 1), eq. (5):
     ``h_f(mu) - h_f(1) = -H ln(u_f(c(mu)) / u_f(c(1)))``. It depends on the Sun elevation at the
     tangent point and on H (through c, `sun_path_ratio`), not on the exposure, the phase function
-    or the optical depth tau (which only sets h_f(1), the configured ``limb_height_m``).
+    or the optical depth tau (which only sets h_f(1), the configured ``limb.height_m``).
     Measured on rendered frames (docs/vision.md): +0.6 km at 20 deg, +1.5 km at 8 deg, +4 km at
     2 deg elevation."""
     lnc, lnu = _uf_table(float(fraction))
     mu = np.asarray(mu_s, dtype=float)
     out = np.empty(mu.shape)
-    # one kernel: sun_path_ratio and the table look-up (np.interp on its uniform ln c grid) were
-    # ~15 numpy calls, ~50 us per limb at 400 points
+    # one kernel for sun_path_ratio and the table look-up (np.interp on its uniform ln c grid),
+    # instead of ~15 numpy calls per limb
     _fraction_shift_kernel(np.ascontiguousarray(mu.reshape(-1)), float(lnc[0]), float(lnc[1] - lnc[0]), lnu,
                            float(scale_height_m), float(radius_m), out.reshape(-1))
     return out
@@ -902,66 +891,83 @@ def _flank_kernel(c, dh, mu, phase, A, H, C, R, gamma, clip, keep, min_samples, 
     for i in range(m):
         out_h[i] = np.nan
         out_rms[i] = np.nan
-        n = 0
-        top = -1.0
-        run = -1.0
-        inside = True
-        for k in range(S):
-            ck = c[i, k]
-            if ck < 0.0 or not math.isfinite(dh[i, k]):
-                inside = False               # outside the image
-                break
-            if ck >= clip:
-                break
-            if ck > run:
-                run = ck
-            elif run >= min_top and (ck / 255.0) ** gamma < keep * (run / 255.0) ** gamma:
-                break                        # the ground side (a drop in the faint tail is noise)
-            if ck < _FLANK_MIN_LEVEL:
-                continue
-            L[n] = (ck / 255.0) ** gamma
-            w[n] = 1.0 / max(ck, _FLANK_WEIGHT_FLOOR) ** ex
-            d[n] = dh[i, k]
-            u[n] = mu[i, k]
-            ph[n] = phase[i, k]
-            n += 1
-            top = max(top, ck)
+        n, top, inside = _flank_samples(c[i], dh[i], mu[i], phase[i], gamma, clip, keep, min_top, ex,
+                                        L, w, d, u, ph)
         if not inside or n < min_samples or top < min_top:
             continue
         _flank_terms(d, u, n, A, H, C, R, E, Q, hmin)
-        sw = sl = sll = 0.0
-        for k in range(n):
-            sw += w[k]
-            sl += w[k] * L[k]
-            sll += w[k] * L[k] * L[k]
-        best, hb = np.inf, np.nan
-        h = 6e3
-        while h <= 100e3:
-            f = _flank_residual(h, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-            if f < best:
-                best, hb = f, h
-            h += _FLANK_GRID
-        if not math.isfinite(hb):
-            continue
-        gr = 0.6180339887498949
-        lo, hi = hb - _FLANK_GRID, hb + _FLANK_GRID
-        x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-        f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-        f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-        for _ in range(20):
-            if f1 < f2:
-                hi, x2, f2 = x2, x1, f1
-                x1 = hi - gr * (hi - lo)
-                f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-            else:
-                lo, x1, f1 = x1, x2, f2
-                x2 = lo + gr * (hi - lo)
-                f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
-        h0 = 0.5 * (lo + hi)
-        f, K, b = _flank_residual(h0, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)
+        h0, f, K = _flank_search(L, w, E, Q, hmin, ph, n, A, H)
         if K > 0.0:
             out_h[i] = h0
             out_rms[i] = math.sqrt(f / n)
+
+
+@numba.njit(cache=True)
+def _flank_samples(c, dh, mu, phase, gamma, clip, keep, min_top, ex, L, w, d, u, ph):
+    """The fitted samples of one profile of `_flank_kernel` into L (linearised), w (weights), d,
+    u, ph (height offsets, Sun cosines, phase factors). Returns (count, brightest sample, inside
+    the image)."""
+    n = 0
+    top = -1.0
+    run = -1.0
+    for k in range(c.shape[0]):
+        ck = c[k]
+        if ck < 0.0 or not math.isfinite(dh[k]):
+            return n, top, False             # outside the image
+        if ck >= clip:
+            break
+        if ck > run:
+            run = ck
+        elif run >= min_top and (ck / 255.0) ** gamma < keep * (run / 255.0) ** gamma:
+            break                            # the ground side (a drop in the faint tail is noise)
+        if ck < _FLANK_MIN_LEVEL:
+            continue
+        L[n] = (ck / 255.0) ** gamma
+        w[n] = 1.0 / max(ck, _FLANK_WEIGHT_FLOOR) ** ex
+        d[n] = dh[k]
+        u[n] = mu[k]
+        ph[n] = phase[k]
+        n += 1
+        top = max(top, ck)
+    return n, top, True
+
+
+@numba.njit(cache=True)
+def _flank_search(L, w, E, Q, hmin, ph, n, A, H):
+    """Height h0 [m] of the best fit of `_flank_residual` over n samples: the `_FLANK_GRID` grid
+    over 6..100 km, then a golden-section search around the best node. Returns (h0, residual, K);
+    (NaN, NaN, NaN) when no node gives a finite residual."""
+    sw = sl = sll = 0.0
+    for k in range(n):
+        sw += w[k]
+        sl += w[k] * L[k]
+        sll += w[k] * L[k] * L[k]
+    best, hb = np.inf, np.nan
+    h = 6e3
+    while h <= 100e3:
+        f = _flank_residual(h, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+        if f < best:
+            best, hb = f, h
+        h += _FLANK_GRID
+    if not math.isfinite(hb):
+        return np.nan, np.nan, np.nan
+    gr = 0.6180339887498949
+    lo, hi = hb - _FLANK_GRID, hb + _FLANK_GRID
+    x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
+    f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+    f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+    for _ in range(20):
+        if f1 < f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - gr * (hi - lo)
+            f1 = _flank_residual(x1, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + gr * (hi - lo)
+            f2 = _flank_residual(x2, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)[0]
+    h0 = 0.5 * (lo + hi)
+    f, K, _ = _flank_residual(h0, L, w, E, Q, hmin, ph, n, A, H, sw, sl, sll)
+    return h0, f, K
 
 
 def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray,

@@ -112,7 +112,7 @@ def conic_type(e_c: np.ndarray, alpha: float, tol: float = 1e-12) -> tuple[float
 
 def per_ray(values, m: int) -> np.ndarray:
     """A scalar or (m,) values as a C-contiguous float64 (m,) array, not copied when it already
-    is one (np.broadcast_to costs ~10 us a call; this is called for every ray set)."""
+    is one (np.broadcast_to's per-call overhead matters: this is called for every ray set)."""
     a = np.asarray(values, dtype=float)
     if a.shape == (m,):
         return np.ascontiguousarray(a)
@@ -121,7 +121,9 @@ def per_ray(values, m: int) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(a, (m,)))
 
 
-def _check_rays(rays_c: np.ndarray, minimum: int = 3) -> np.ndarray:
+def check_rays(rays_c: np.ndarray, minimum: int = 3) -> np.ndarray:
+    """Rays (m, 3), m >= ``minimum``, normalised to unit length; ValueError for a wrong shape, too
+    few rays, NaN/inf or zero-length rays."""
     H = np.asarray(rays_c, dtype=float)
     if H.ndim != 2 or H.shape[1] != 3:
         raise ValueError(f"rays_c must have shape (m, 3), got {H.shape}")
@@ -217,8 +219,8 @@ def pframe_residual(rays_c: np.ndarray, e_c: np.ndarray, alpha: float, f: float 
     return total / P.shape[0] if mean else total
 
 
-def _norm3(v: np.ndarray) -> float:
-    """|v| of a 3-vector in float arithmetic (np.linalg.norm's call overhead is ~3 us; fits are
+def norm3(v: np.ndarray) -> float:
+    """|v| of a 3-vector in float arithmetic (without np.linalg.norm's call overhead; fits are
     made several times per frame); NaN/inf propagate."""
     a, b, c = v.tolist()
     return math.sqrt(a * a + b * b + c * c)
@@ -226,7 +228,7 @@ def _norm3(v: np.ndarray) -> float:
 
 def _make_fit(H: np.ndarray, n: np.ndarray, rhs: float, alpha: float, method: str,
               norm_n: float | None = None) -> ConeFit:
-    e = n / (_norm3(n) if norm_n is None else norm_n)
+    e = n / (norm3(n) if norm_n is None else norm_n)
     delta, kind = conic_type(e, alpha)
     return ConeFit(e_c=e, alpha=float(alpha), n=n, rhs=float(rhs), discriminant=delta, conic=kind,
                    residual=_mean_sq_residual(H, e, float(alpha)), m=H.shape[0], method=method)
@@ -352,7 +354,7 @@ def nadir_from_horizon(rays_c: np.ndarray, alpha: float, method: str = "constrai
     """
     if not 0.0 < alpha < math.pi / 2:
         raise ValueError(f"nadir_from_horizon: alpha = {alpha} rad; expected 0 < alpha < pi/2")
-    H = _check_rays(rays_c)
+    H = check_rays(rays_c)
     c = math.cos(alpha)
     if method == "linear":
         n, _, rank, _ = np.linalg.lstsq(H, np.full(H.shape[0], c), rcond=None)
@@ -363,7 +365,7 @@ def nadir_from_horizon(rays_c: np.ndarray, alpha: float, method: str = "constrai
         n = constrained_cone_fit(H, c)
     else:
         raise ValueError(f"nadir_from_horizon: method {method!r}; expected 'linear' or 'constrained'")
-    nn = _norm3(n)
+    nn = norm3(n)
     if not (math.isfinite(nn) and nn > 0.0):
         raise ValueError("nadir_from_horizon: degenerate ray set (rays on a plane through the origin)")
     return _make_fit(H, n, c, alpha, method, nn)
@@ -377,12 +379,12 @@ def direction_and_radius(rays_c: np.ndarray) -> ConeFit:
     exactly. Raises ValueError when the rays lie on a great circle (|n| < 1 cannot happen for a
     cone with alpha < 90 deg; it signals a non-conical ray set).
     """
-    H = _check_rays(rays_c)
+    H = check_rays(rays_c)
     n, rank = _lstsq_ones(H)
     if rank < 3:
         raise ValueError("direction_and_radius: degenerate ray set (rank < 3: rays on a great "
                          "circle or fewer than 3 distinct rays)")
-    nn = _norm3(n)
+    nn = norm3(n)
     if not math.isfinite(nn) or nn < 1.0:
         raise ValueError(f"direction_and_radius: |n| = {nn:.6g} < 1: the rays do not lie on a cone "
                          f"with half-angle below 90 deg")
@@ -405,7 +407,7 @@ def mirrored_direction(e_c: np.ndarray, rays_c: np.ndarray) -> np.ndarray:
     singular vector of H; the mirror e' = e - 2 (e.u) u is the other local minimum of the
     unit-constrained fit for a short, nearly straight arc.
     """
-    H = _check_rays(rays_c, minimum=2)
+    H = check_rays(rays_c, minimum=2)
     u = np.linalg.svd(H, full_matrices=False)[2][-1]
     e = np.asarray(e_c, dtype=float)
     return e - 2.0 * (e @ u) * u
@@ -425,12 +427,12 @@ def earth_side_check(e_c: np.ndarray, alpha: float, body_rays: np.ndarray | None
     e = e / np.linalg.norm(e)
     good, total = 0, 0
     if body_rays is not None:
-        B = _check_rays(body_rays, minimum=1)
+        B = check_rays(body_rays, minimum=1)
         ang = np.arccos(np.clip(B @ e, -1, 1))
         good += int(np.count_nonzero(ang < alpha - margin))
         total += B.shape[0]
     if space_rays is not None:
-        S = _check_rays(space_rays, minimum=1)
+        S = check_rays(space_rays, minimum=1)
         ang = np.arccos(np.clip(S @ e, -1, 1))
         good += int(np.count_nonzero(ang > alpha + margin))
         total += S.shape[0]

@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from vision.camera import FisheyeCamera, inverse_radial, radial_derivative, radial_distance
-from vision.nadir import ConeFit, _check_rays, _within_cone, direction_and_radius, nadir_from_horizon, per_ray
+from vision.nadir import ConeFit, check_rays, direction_and_radius, nadir_from_horizon, per_ray, within_cone
 
 __all__ = ["RansacResult", "ransac_cone", "pixel_angle"]
 
@@ -177,7 +177,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
     method : refit method for known alpha (see `nadir_from_horizon`).
     min_inliers : fewer inliers than this raises ValueError.
     """
-    H = _check_rays(rays_c)
+    H = check_rays(rays_c)
     m = H.shape[0]
     thr = per_ray(threshold, m)
     if not thr.min() > 0:
@@ -199,7 +199,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
             continue
         n_scored += n_valid
         if counts[j] > best_count:
-            best_count, best_mask = int(counts[j]), _within_cone(H, E[j], AL[j], thr)
+            best_count, best_mask = int(counts[j]), within_cone(H, E[j], AL[j], thr)
             w = best_count / m
             if w >= 1.0:
                 needed = n_hyp
@@ -217,7 +217,7 @@ def ransac_cone(rays_c: np.ndarray, rng: np.random.Generator, alpha: float | Non
         return nadir_from_horizon(H[mask], alpha, method=method)
 
     fit = refit(best_mask)
-    mask = _within_cone(H, fit.e_c, fit.alpha, thr)
+    mask = within_cone(H, fit.e_c, fit.alpha, thr)
     if mask.sum() >= max(min_inliers, 3) and not (mask == best_mask).all():
         fit = refit(mask)
     else:

@@ -25,7 +25,8 @@ def add_arguments(p) -> None:
     p.add_argument("--height", type=float, required=True, help="height above the ellipsoid [m]")
     p.add_argument("--lat", type=float, default=None,
                    help="geodetic latitude [deg] for the local radius of curvature (default: mean radius)")
-    p.add_argument("--config", default=None, help="vision config TOML (default: scenarios/library/vision/default.toml)")
+    p.add_argument("--config", default=None, help="vision config TOML of overrides (default: none; example: "
+                   "scenarios/library/vision/default.toml)")
     p.add_argument("--mask", default=None, help="payload mask image (non-zero = ignored), the camera's size")
     p.add_argument("--annotate", default=None, metavar="DIR", help="write annotated PNGs into DIR")
     p.add_argument("--json", action="store_true", help="print JSON (one object per image)")

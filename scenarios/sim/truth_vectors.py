@@ -37,8 +37,8 @@ __all__ = ["TruthVectors", "SUN_RADIUS_M", "DEFAULT_SUN_BLOOM", "camera_truth_ve
 #: Solar radius [m] (IAU 2015 nominal), for the Sun's apparent radius.
 SUN_RADIUS_M = 6.957e8
 #: Bloom factor of the Sun disc in the rendered images: the vision front end's Sun fits report an
-#: apparent radius of about twice the geometric 0.27 deg (003 §5; scenarios/library/vision
-#: default.toml accepts 0.2-1.0 deg).
+#: apparent radius of about twice the geometric 0.27 deg (003 §5; the default
+#: `vision.config.VisionConfig` accepts Sun radii of 0.2-4.0 deg).
 DEFAULT_SUN_BLOOM = 2.0
 #: log target name -> filter target name (nav.navigator.VectorData).
 LOG_TO_NAV_TARGET = {"earth": "hor", "sun": "sun", "moon": "moon"}

@@ -10,7 +10,8 @@ import numpy as np
 
 from vision import mask as vmask
 from vision.binarize import BinarizeConfig, binarize, brightness_gate, brightness_histogram, resolve_threshold
-from vision.borders import SearchConfig, find_borders, find_borders_reference, search_line_spacing
+from tests.vision_reference import find_borders_reference
+from vision.borders import SearchConfig, find_borders, search_line_spacing
 from vision.candidates import DetectionConfig, detect, split_borders
 
 

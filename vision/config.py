@@ -1,0 +1,468 @@
+"""Configuration of the vision front end (`vision.frontend.process_frame`): one `TargetConfig` per
+target, each with one options dataclass per processing stage, and the per-frame `FramePrior`.
+
+The dataclasses hold the defaults, and only they: ``VisionConfig()`` is the configuration for the
+ATEK-like cameras (the stage options' own defaults, and per target the values that differ from
+them). The one camera-dependent value, the spacing of the Sun/Moon search lines
+(``2 f tan(alpha_min)``, 003 §5), is computed from the camera's focal length by
+`resolve_search_lines` (`default_config` and `process_frame` call it). Configuration files hold
+overrides only (`scenarios.config.vision`).
+
+Residual thresholds (003 §7.3 re-derived for our residual)
+----------------------------------------------------------
+003 accepts horizons with delta < 0.025 and Suns with delta < 0.5e-5, delta being eq. (28): the
+*sum* over the m edge points of squared distances along x_p on the z = f plane, with f = 1
+(normalised coordinates; with f in pixels the 0.025 would be below the quantisation noise of a
+single pixel). Our residual is the *mean* squared angular distance [rad^2]. A plane distance
+dx at off-axis angle theta is an angle of about dx cos^2(theta); for 003's horizons (m ~ 2000
+pixels spanning the 1920 px width, theta ~ 30-45 deg, cos^-4 ~ 2-4) delta < 0.025 means
+mean(angle^2) < 0.025 / 2000 / 3 ~ 4e-6 rad^2 (2 mrad RMS, ~2.2 px at f = 1110 px). For the Sun
+(a saturated, blooming disc, m ~ 100 pixels near the axis) delta < 0.5e-5 means
+mean(angle^2) < 5e-8 rad^2 (0.22 mrad RMS, 0.25 px); the Sun/Moon default of 1e-6 relaxes it for
+JPEG and bloom. The defaults start from these figures and are checked on rendered frames
+(docs/vision.md).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vision.binarize import BinarizeConfig
+from vision.borders import SearchConfig, search_line_spacing
+from vision.candidates import DetectionConfig
+
+__all__ = ["TARGETS", "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "FlankOptions",
+           "CalibrationOptions", "LimbOptions", "TargetConfig", "VisionConfig", "FramePrior",
+           "default_config", "resolve_search_lines"]
+
+TARGETS = ("earth", "sun", "moon")
+
+
+class _Checks:
+    """Validation helpers: ``ValueError("Class.field = value; expected ...")``."""
+
+    def _bad(self, name, expected):
+        raise ValueError(f"{type(self).__name__}.{name} = {getattr(self, name)!r}; expected {expected}")
+
+    def _ints(self, names, lo=1):
+        for n in names:
+            v = getattr(self, n)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+                self._bad(n, f"an integer >= {lo}")
+
+    def _finite(self, names, lo=0.0, strict=False):
+        for n in names:
+            v = getattr(self, n)
+            if not (math.isfinite(v) and (v > lo if strict else v >= lo)):
+                self._bad(n, f"a finite number {'>' if strict else '>='} {lo:g}")
+
+    def _fractions(self, names):
+        for n in names:
+            if not 0.0 <= getattr(self, n) <= 1.0:
+                self._bad(n, "a fraction in [0, 1]")
+
+    def _within(self, name, lo, hi, expected):
+        v = getattr(self, name)
+        if not (math.isfinite(v) and lo <= v <= hi):
+            self._bad(name, expected)
+
+
+@dataclass(frozen=True)
+class ScoringOptions(_Checks):
+    """Cheap scoring of the detected candidates (module docstring of `vision.frontend`, step 2).
+
+    Attributes
+    ----------
+    max_candidates : candidates scored, the longest first.
+    score_rays : pixels per candidate used for the cheap fit (spread along the edge), >= 8.
+    direct_outlier_fraction : a candidate is first fitted directly (all scored pixels); when at
+        most this fraction [0..1] is outside the RANSAC threshold the direct fit (refitted on its
+        inliers) stands and RANSAC is skipped (most horizons and Suns: the cost of RANSAC is only
+        paid on disturbed edges).
+    curvature_tol_deg : pre-filter before any fit [deg]: at least one circle through three pixels
+        spread along the edge must have an angular radius within this of alpha (Earth) or below
+        ``alpha_max_deg`` plus this (Sun/Moon); the Sun's glare halo or a cloud bank does not
+        (1 px of edge noise moves the radius of a third of a 1900 px horizon by ~2 deg).
+    compete_fraction : once a candidate is accepted, candidates shorter than this fraction [0..1]
+        of it are not scored (one Earth, one Sun: a much shorter edge cannot be the limb of the
+        body whose limb was already found; it saves the RANSAC runs on cloud and glare edges).
+    """
+
+    max_candidates: int = 6
+    score_rays: int = 160
+    direct_outlier_fraction: float = 0.05
+    curvature_tol_deg: float = 10.0
+    compete_fraction: float = 0.5
+
+    def __post_init__(self):
+        self._ints(("max_candidates", "score_rays"))
+        if self.score_rays < 8:
+            self._bad("score_rays", ">= 8 pixels")
+        self._finite(("curvature_tol_deg",), strict=True)
+        self._fractions(("direct_outlier_fraction", "compete_fraction"))
+
+
+@dataclass(frozen=True)
+class RansacOptions(_Checks):
+    """RANSAC cone fit of a disturbed candidate (`vision.ransac.ransac_cone`, 000 §2.3).
+
+    Attributes
+    ----------
+    threshold_px : inlier distance to the cone [px] (converted per ray to an angle with the
+        pixel angle, `vision.ransac.pixel_angle`); also the inlier test of the direct fit.
+    max_hypotheses : most hypotheses drawn (one batch).
+    confidence : adaptive stop, probability (0..1) of having drawn an all-inlier sample.
+    min_inlier_fraction : fewest inliers as a fraction [0..1] of the scored pixels.
+    """
+
+    threshold_px: float = 2.0
+    max_hypotheses: int = 200
+    confidence: float = 0.999
+    min_inlier_fraction: float = 0.6
+
+    def __post_init__(self):
+        self._ints(("max_hypotheses",))
+        self._finite(("threshold_px",), strict=True)
+        if not 0.0 < self.confidence < 1.0:
+            self._bad("confidence", "in (0, 1)")
+        self._fractions(("min_inlier_fraction",))
+
+
+@dataclass(frozen=True)
+class SideCheckOptions(_Checks):
+    """Mirrored-nadir test (002 §3, `vision.probes.side_score`) and the Sun/Moon disc test.
+
+    Attributes
+    ----------
+    step_px : step [px] from the edge to the probed pixels (also the outer ring of the disc test).
+    min_agree : fraction [0..1] of the probes that must be on their expected side.
+    rays : edge pixels probed.
+    """
+
+    step_px: float = 3.0
+    min_agree: float = 0.8
+    rays: int = 24
+
+    def __post_init__(self):
+        self._ints(("rays",))
+        self._finite(("step_px",), strict=True)
+        self._fractions(("min_agree",))
+
+
+@dataclass(frozen=True)
+class FitOptions(_Checks):
+    """Final fit and covariance of the winning candidate (003 eqs. (33)-(38)).
+
+    Attributes
+    ----------
+    rays : most pixels of the winning edge used (spread along it; the correlation length is
+        scaled with the step, so the covariance of the correlated noise (003 eq. (34)) is that of
+        the full edge).
+    R_px2 : pixel-noise variance [px^2] (003 eq. (36): Earth 1 px^2; eq. (38): Sun 9 px^2;
+        calibrated on rendered frames, docs/vision.md).
+    L_px : correlation length of the pixel noise [px] (003 eqs. (35)-(36)), >= 1.
+    """
+
+    rays: int = 512
+    R_px2: float = 1.0
+    L_px: float = 300.0
+
+    def __post_init__(self):
+        self._ints(("rays",))
+        self._finite(("R_px2",))
+        if not self.L_px >= 1.0:
+            self._bad("L_px", ">= 1 px (003 eq. (35))")
+
+
+@dataclass(frozen=True)
+class FlankOptions(_Checks):
+    """Heights fitted on the unsaturated flanks of clipped limb profiles (`vision.limb.flank_heights`).
+
+    When fewer than ``LimbOptions.min_used`` of the profiles are usable (the auto exposure clips
+    the red limb maximum), the height of the edge pixel is fitted on the unsaturated flank of
+    ``profiles`` profiles spread along the edge (eq. (4)'s shape of `vision.limb` with the
+    exposure and black level free), interpolated along it, and the threshold edge fitted with
+    those heights.
+
+    Attributes
+    ----------
+    profiles : profiles fitted, 0..512; 0 = off.
+    min_profiles : fewest fitted profiles for a result, >= 3.
+    sigma_m : covariance term [m] (the heights' spread over sqrt(n) is added); measured per-frame
+        mean height errors 0.2-0.6 km on clipped frames (docs/vision.md).
+    """
+
+    profiles: int = 16
+    min_profiles: int = 8
+    sigma_m: float = 600.0
+
+    def __post_init__(self):
+        if not (isinstance(self.profiles, int) and 0 <= self.profiles <= 512):
+            self._bad("profiles", "an integer in [0, 512] (0 = off)")
+        self._ints(("min_profiles",), lo=3)
+        self._finite(("sigma_m",))
+
+
+@dataclass(frozen=True)
+class CalibrationOptions(_Checks):
+    """Threshold edge calibrated on the usable limb profiles of the same frame.
+
+    When fewer than ``below`` of the winner's inliers give a usable limb profile (a clipped limb
+    maximum, a twilight limb: a short arc), but at least ``min_points`` do, at each usable point
+    the threshold pixel lies ``a_i`` [rad] outside its fraction-of-peak crossing, whose height is
+    known (``LimbOptions.height_m`` + Sun-path shift), so the threshold edge's effective thickness
+    there is ``d_i = h_i + a_i / (d alpha / d d)``; their median ``d_thr`` replaces
+    ``TargetConfig.atmosphere_m`` and the *whole* threshold arc is fitted with it (a long arc
+    instead of the short usable one). Above 10 % usable profiles the short limb arc is better on
+    average than the calibrated threshold arc, whose height varies 1-4 km along the limb.
+
+    Attributes
+    ----------
+    below : usable fraction [0..1] under which the calibration runs; 0 = off.
+    min_points : fewest usable profiles, >= 3.
+    sigma_m : covariance term [m]: the spread of ``d_thr`` against the true mean height of the
+        threshold edge (it was 2-7 km low on rendered frames, docs/vision.md); the spread of the
+        d_i over sqrt(n) is added.
+    """
+
+    below: float = 0.1
+    min_points: int = 20
+    sigma_m: float = 3000.0
+
+    def __post_init__(self):
+        self._fractions(("below",))
+        self._ints(("min_points",), lo=3)
+        self._finite(("sigma_m",))
+
+
+@dataclass(frozen=True)
+class LimbOptions(_Checks):
+    """Fraction-of-peak limb edge (`vision.limb`; Earth only, needs a prior with x_e, R_ec, sun_c).
+
+    The winner's edge pixels are moved to where the limb profile crosses ``fraction`` of its own
+    maximum (exposure-invariant), at a tangent height fixed by the atmosphere (tau, H), and fitted
+    with d = ``height_m`` (uncertainty ``height_sigma_m``) instead of the threshold edge with
+    ``TargetConfig.atmosphere_m``.
+
+    Attributes
+    ----------
+    fraction : fraction (0..1) of the profile's maximum; 0 = off (threshold edge).
+    channel : colour channel of the decoded frame for the profile (BGR: 2 = red, the channel least
+        often clipped on the blue limb; -1 = the mean).
+    height_m : tangent height [m] of the crossing with the Sun overhead at the tangent point (the
+        Sun-path shift is added per point); measured 18.2-18.5 km after the shift for 4..30 deg
+        elevation on the benchmark frames.
+    height_sigma_m : its frame-to-frame and along-the-limb spread [m] (covariance term).
+    min_sun_elev_deg : limb points with the Sun lower than this [deg] at the tangent point are not
+        used (below ~-3 deg the limb's maximum is the Earth's shadow edge).
+    min_used : the fraction-of-peak edge is used only when at least this fraction [0..1] of the
+        winner's inliers give a usable profile (not clipped, Sun high enough); else the flank fit,
+        the calibration or the threshold edge with ``atmosphere_m``.
+    sun_path : predict each point's crossing height from the Sun elevation at its tangent point
+        (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`: the sunlight's own path
+        through the lower atmosphere lifts the limb maximum) and turn its ray by the shift, so one
+        cone angle (``height_m``) fits all.
+    scale_height_m : H of that model [m], 1..20 km (the standard atmosphere's 7-8.5 km).
+    profile_below_deg : points with the Sun lower than this [deg] at the tangent point take the
+        Sun elevation's change down their profile into account
+        (`vision.limb.profile_height_shift`: kilometres near the terminator, 30-90 m at 8-15 deg
+        and less above, where eq. (5) alone is used).
+    sun_path_sigma : model error as a fraction of the frame's mean shift (covariance term).
+    twilight_el_deg, twilight_dh_m : optional measured correction [m] added to the model at these
+        Sun elevations [deg] (increasing; linear interpolation, 0 outside); empty: none.
+    twilight_sigma_m : the per-frame spread [m] left after that correction, weighted in the
+        covariance by the share of points below its last knot.
+    refit_threshold_px : inlier threshold [px] of the refits with the limb heights (limb edge,
+        flank, calibrated threshold edge): their rays lie on one cone to the heights' accuracy
+        (~0.1 km, a fraction of a pixel), tighter than ``RansacOptions.threshold_px``, which must
+        admit the threshold edge's 1-4 km of height variation along the limb.
+    aerosol_weight, aerosol_g : the limb's scattering phase function (Rayleigh plus this weight
+        [0..1] of a Henyey-Greenstein aerosol lobe of asymmetry g [0..1),
+        `vision.limb.phase_function`): its change along each profile is divided out
+        (`vision.limb.phase_slope`), which matters near the Sun; weight 0 = Rayleigh only.
+    flank : `FlankOptions`; calibrate : `CalibrationOptions` (clipped limb maxima).
+    """
+
+    fraction: float = 0.5
+    channel: int = 2
+    height_m: float = 18300.0
+    height_sigma_m: float = 150.0
+    min_sun_elev_deg: float = -3.0
+    min_used: float = 0.1
+    sun_path: bool = True
+    scale_height_m: float = 8000.0
+    profile_below_deg: float = 8.0
+    sun_path_sigma: float = 0.05
+    twilight_el_deg: tuple = ()
+    twilight_dh_m: tuple = ()
+    twilight_sigma_m: float = 1100.0
+    refit_threshold_px: float = 2.0
+    aerosol_weight: float = 0.25
+    aerosol_g: float = 0.75
+    flank: FlankOptions = FlankOptions()
+    calibrate: CalibrationOptions = CalibrationOptions()
+
+    def __post_init__(self):
+        if not 0.0 <= self.fraction < 1.0:
+            self._bad("fraction", "0 (off) or a fraction in (0, 1)")
+        if self.channel not in (-1, 0, 1, 2):
+            self._bad("channel", "-1 (mean) or a channel index 0, 1, 2 of the decoded (BGR) frame")
+        if not (math.isfinite(self.height_m) and 0.0 <= self.height_m < 200e3):
+            self._bad("height_m", "0 <= h < 200 km")
+        self._finite(("height_sigma_m", "sun_path_sigma", "twilight_sigma_m"))
+        self._within("min_sun_elev_deg", -10.0, 90.0, "an elevation in [-10, 90] deg (below ~-3 deg the "
+                     "limb's maximum is the Earth's shadow edge)")
+        self._fractions(("min_used",))
+        if not isinstance(self.sun_path, bool):
+            self._bad("sun_path", "true or false")
+        self._within("scale_height_m", 1e3, 20e3, "a scale height of 1..20 km (Earth: 7-8.5 km)")
+        self._within("profile_below_deg", -10.0, 90.0, "an elevation in [-10, 90] deg")
+        kn, dv = tuple(self.twilight_el_deg), tuple(self.twilight_dh_m)
+        if (len(kn) != len(dv) or len(kn) == 1
+                or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in kn + dv)
+                or any(b <= a for a, b in zip(kn[:-1], kn[1:])) or any(abs(v) > 30e3 for v in dv)):
+            self._bad("twilight_el_deg", "with twilight_dh_m: equally long lists (>= 2 or empty) of "
+                      "increasing elevations [deg] and height corrections |dh| <= 30 km [m]")
+        self._finite(("refit_threshold_px",), strict=True)
+        self._within("aerosol_weight", 0.0, 1.0, "a weight in [0, 1]")
+        if not (math.isfinite(self.aerosol_g) and 0.0 <= self.aerosol_g < 1.0):
+            self._bad("aerosol_g", "an asymmetry parameter in [0, 1)")
+
+
+@dataclass(frozen=True)
+class TargetConfig(_Checks):
+    """Processing of one target (Earth, Sun or Moon): the body, what is accepted, and the options
+    of each stage.
+
+    Attributes
+    ----------
+    enabled : process this target.
+    detection : threshold, brightness gate, edge search, minimum candidate length
+        (`vision.candidates.DetectionConfig`).
+    min_pixels : fewest inlier pixels for a vector.
+    max_residual : acceptance, mean squared angular distance of the inliers from the cone [rad^2]
+        (003 §7.3 re-derived, module docstring).
+    alpha_min_deg, alpha_max_deg : accepted apparent radius of the Sun/Moon [deg] (glare included).
+    gate_deg : largest angle [deg] of an accepted vector from the predicted direction when the
+        prior gives one: Sun/Moon `FramePrior.sun_c`, ``moon_c``; Earth the geocentric nadir
+        ``R_ec.T @ (-x_e / |x_e|)`` when the prior has x_e and R_ec (a glare edge that fits a cone
+        of the Earth's radius elsewhere is rejected). Covers attitude-prior and mounting errors of
+        a few degrees.
+    atmosphere_m : effective atmosphere thickness d [m] (003 eq. (5)), 0..200 km; Earth only.
+        The apparent horizon is where the limb's brightness crosses the threshold, at a tangent
+        height d that varies with exposure and illumination (003 §4, 004 §3.4.3).
+    atmosphere_sigma_m : its 1-sigma uncertainty [m], added to the covariance; Earth only.
+    edge_offset_px : distance [px] from the centres of the followed (white) border pixels to the
+        brightness edge, which lies between them and their dark neighbours: half a pixel. The
+        Earth cone is shrunk by this angle (without it the nadir is biased by ~0.03 deg on
+        rendered frames); the Sun/Moon radius absorbs it.
+    scoring, ransac, side_check, fit, limb : the stages' options (`ScoringOptions`,
+        `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`; limb: Earth only).
+    """
+
+    enabled: bool = True
+    detection: DetectionConfig = DetectionConfig()
+    min_pixels: int = 50
+    max_residual: float = 4e-6
+    alpha_min_deg: float = 0.2
+    alpha_max_deg: float = 5.0
+    gate_deg: float = 10.0
+    atmosphere_m: float = 0.0
+    atmosphere_sigma_m: float = 0.0
+    edge_offset_px: float = 0.5
+    scoring: ScoringOptions = ScoringOptions()
+    ransac: RansacOptions = RansacOptions()
+    side_check: SideCheckOptions = SideCheckOptions()
+    fit: FitOptions = FitOptions()
+    limb: LimbOptions = LimbOptions()
+
+    def __post_init__(self):
+        self._ints(("min_pixels",))
+        self._finite(("max_residual", "alpha_max_deg", "gate_deg"), strict=True)
+        self._finite(("atmosphere_sigma_m", "alpha_min_deg"))
+        if not self.alpha_min_deg < self.alpha_max_deg < 90.0:
+            self._bad("alpha_max_deg", "alpha_min_deg < alpha_max_deg < 90")
+        if not (math.isfinite(self.atmosphere_m) and 0.0 <= self.atmosphere_m < 200e3):
+            self._bad("atmosphere_m", "0 <= d < 200 km")
+
+
+@dataclass(frozen=True)
+class VisionConfig:
+    """Front-end configuration: one `TargetConfig` per target, the Earth-radius fallback.
+
+    The defaults are those of the ATEK-like cameras: Earth with the threshold edge at d = 45 km
+    measured on rendered frames and the fraction-of-peak limb edge; the Sun saturated (threshold
+    250, 003 §5) and searched on lines spaced for 0.5 deg (`resolve_search_lines`); the Moon off
+    (rarely in view in the ATEK flight; enable per scenario).
+
+    ``sphere_radius_m``: radius [m] of the substitute sphere when there is no position prior (003
+    §2.8; None = ``nav.earth.R_MEAN``, or the Gaussian radius at ``FramePrior.lat``).
+    """
+
+    earth: TargetConfig = TargetConfig(
+        detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
+        min_pixels=100, atmosphere_m=45e3, atmosphere_sigma_m=7e3,
+        scoring=ScoringOptions(score_rays=100),
+        ransac=RansacOptions(threshold_px=4.0, max_hypotheses=100, min_inlier_fraction=0.5),
+        fit=FitOptions(R_px2=0.2))
+    sun: TargetConfig = TargetConfig(
+        detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(alpha_min_deg=0.5), 12),
+        min_pixels=12, max_residual=1e-6, alpha_max_deg=4.0,
+        scoring=ScoringOptions(score_rays=100),
+        ransac=RansacOptions(max_hypotheses=100, min_inlier_fraction=0.5),
+        fit=FitOptions(R_px2=0.16))
+    moon: TargetConfig = TargetConfig(
+        enabled=False,
+        detection=DetectionConfig(BinarizeConfig(threshold=120.0), SearchConfig(alpha_min_deg=0.5), 12),
+        min_pixels=12, max_residual=1e-6, alpha_max_deg=1.0,
+        ransac=RansacOptions(min_inlier_fraction=0.5),
+        fit=FitOptions(R_px2=9.0))
+    sphere_radius_m: float | None = None
+
+    def target(self, name: str) -> TargetConfig:
+        if name not in TARGETS:
+            raise ValueError(f"target {name!r}; expected one of {TARGETS}")
+        return getattr(self, name)
+
+
+def resolve_search_lines(config: VisionConfig, focal_px: float) -> VisionConfig:
+    """``config`` with the search-line spacing of every target whose `SearchConfig` gives
+    ``alpha_min_deg`` but no ``line_spacing_px``: ``2 f tan(alpha_min)`` (003 §5,
+    `vision.borders.search_line_spacing`) with the focal length ``focal_px`` [px] (the smaller of
+    fx, fy). The same object when nothing is to be resolved."""
+    kw = {}
+    for name in TARGETS:
+        tc = getattr(config, name)
+        s = tc.detection.search
+        if s.line_spacing_px is None and s.alpha_min_deg is not None:
+            spacing = search_line_spacing(focal_px, math.radians(s.alpha_min_deg))
+            det = dataclasses.replace(tc.detection, search=dataclasses.replace(s, line_spacing_px=spacing))
+            kw[name] = dataclasses.replace(tc, detection=det)
+    return dataclasses.replace(config, **kw) if kw else config
+
+
+def default_config(focal_px: float = 1110.0) -> VisionConfig:
+    """The default `VisionConfig` with its search lines spaced for a camera of focal length
+    ``focal_px`` [px] (`resolve_search_lines`; 1110 px: the ATEK lens)."""
+    return resolve_search_lines(VisionConfig(), focal_px)
+
+
+@dataclass(frozen=True)
+class FramePrior:
+    """Prior knowledge for one frame: position ``x_e`` [m] (GPS/INS) and camera attitude ``R_ec``
+    (camera -> e) enable the ellipsoid model (`vision.oblate.ellipsoid_model`); ``lat`` [rad]
+    alone selects the Gaussian radius of curvature for the spherical model. ``sun_c``, ``moon_c``:
+    predicted unit directions in the camera frame (ephemeris + attitude prior, e.g.
+    ``R_ec.T @ nav.ephemeris.sun_direction_e(t, x_e)``): Sun/Moon candidates further than
+    ``TargetConfig.gate_deg`` from them are rejected (lens-flare ghosts, glints; 004 §3.4); with
+    x_e and R_ec, Earth candidates further than the Earth's ``gate_deg`` from the predicted
+    geocentric nadir ``R_ec.T @ (-x_e / |x_e|)`` are rejected too (glare edges)."""
+
+    x_e: np.ndarray | None = None
+    R_ec: np.ndarray | None = None
+    lat: float | None = None
+    sun_c: np.ndarray | None = None
+    moon_c: np.ndarray | None = None

@@ -1,0 +1,104 @@
+"""Results of the vision front end (`vision.frontend.process_frame`): the direction-vector
+records, and per target and candidate what happened (for logs, annotation and tests)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vision.candidates import Detection
+from vision.nadir import ConeFit
+
+__all__ = ["VectorRecord", "CandidateResult", "TargetResult", "FrameResult"]
+
+
+@dataclass(frozen=True)
+class VectorRecord:
+    """One direction vector (the DirectionVector log message, docs/log-format.md).
+
+    e_c : unit vector in the camera frame (Earth: geocentric nadir -x_e/|x_e| with the ellipsoid
+        model, 003 eq. (39); the substitute-sphere centre with the spherical model).
+    P_c : full 3x3 covariance (003 eq. (33) + atmosphere term); P_overbound : eq. (37).
+    residual : mean squared angular residual of the inliers [rad^2].
+    pixel_count : pixels of the winning edge candidate; inlier_count : its inliers (counted on the
+        up to ``fit.rays`` pixels used for the final fit, scaled to the whole edge).
+    conic_type : "ellipse" / "hyperbola" of the fitted cone in the image (003 Table 1).
+    alpha : cone half-angle [rad] (Earth: in the fit frame of the limb model; Sun/Moon: estimated).
+    model : "ellipsoid", "sphere" (Earth) or "" (Sun/Moon).
+    """
+
+    t_ns: int
+    camera: int
+    target: str
+    e_c: np.ndarray
+    P_c: np.ndarray
+    P_overbound: np.ndarray
+    residual: float
+    pixel_count: int
+    inlier_count: int
+    conic_type: str
+    alpha: float
+    model: str = ""
+
+    @property
+    def sigma_deg(self) -> float:
+        """1-sigma angle of the overbound [deg]."""
+        return math.degrees(math.sqrt(self.P_overbound[0, 0]))
+
+
+@dataclass
+class CandidateResult:
+    """Outcome of one candidate: fit (None if it failed early), residual, reason ("" = accepted)."""
+
+    index: int
+    n_pixels: int
+    fit: ConeFit | None = None
+    residual: float = math.inf
+    inliers: int = 0
+    reason: str = ""
+    mirrored: bool = False
+
+
+@dataclass
+class TargetResult:
+    """Everything about one target in one frame, for records and annotation."""
+
+    target: str
+    detection: Detection | None
+    candidates: list = field(default_factory=list)
+    winner: int | None = None
+    points: np.ndarray | None = None     # winner's pixels (m, 2)
+    inlier_mask: np.ndarray | None = None
+    record: VectorRecord | None = None
+    reason: str = ""
+    baseline_e_c: np.ndarray | None = None   # general conic fit (vision.conic) on the winner
+    baseline_reason: str = ""
+    limb_edge: bool = False   # Earth: the fraction-of-peak limb edge was used (vision.limb)
+    limb_used: float = 0.0    # its fraction of usable limb profiles
+    limb_shift_m: float = 0.0  # mean Sun-path height shift of its points (vision.limb eq. (5))
+    limb_path: str = ""       # Earth: "limb" (fraction-of-peak edge), "flank" (threshold edge with
+    # heights fitted on the unsaturated profile flanks), "calibrated" (threshold edge
+    # with d calibrated on the usable limb profiles), "" (threshold edge with atmosphere_m)
+    limb_d_m: float = math.nan  # effective thickness of the threshold edge [m]: calibrated d_thr, or
+    # the mean height fitted on the profile flanks
+    cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the
+    # visible horizon's cone (its conic type; drawn by the replay's overlay)
+
+
+@dataclass
+class FrameResult:
+    """`process_frame` output: the vector records, a reason per target without a vector, the
+    per-target details and the stage timings [s]."""
+
+    records: list
+    reasons: dict
+    targets: dict
+    timings: dict
+    model: str
+
+    def record(self, target: str) -> VectorRecord | None:
+        for r in self.records:
+            if r.target == target:
+                return r
+        return None
