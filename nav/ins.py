@@ -30,45 +30,22 @@ import numba as nb
 import numpy as np
 
 from nav import earth
+from nav._kernels import gravity, quat_to_R_into
 from nav.checks import as_vectors
 from nav.imu_errors import ImuCalibration
 from nav.rotation import quat_normalize
 
-_A, _GM, _J2, _W = earth.A, earth.GM, earth.J2, earth.OMEGA_E
-
-
-@nb.njit(cache=True, fastmath=False)
-def _gravity(x0, x1, x2):
-    """J2 gravitation + centrifugal in e; same formula as :func:`nav.earth.gravity_e`."""
-    r2 = x0 * x0 + x1 * x1 + x2 * x2
-    r = math.sqrt(r2)
-    zr2 = x2 * x2 / r2
-    k = 1.5 * _J2 * (_A * _A / r2)
-    fxy = 1.0 + k * (1.0 - 5.0 * zr2)
-    fz = 1.0 + k * (3.0 - 5.0 * zr2)
-    s = -_GM / (r2 * r)
-    w2 = _W * _W
-    return s * fxy * x0 + w2 * x0, s * fxy * x1 + w2 * x1, s * fz * x2
-
-
-@nb.njit(cache=True)
-def _rot(q, R):
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    n = x * x + y * y + z * z + w * w
-    s = 2.0 / n
-    R[0, 0] = 1 - s * (y * y + z * z); R[0, 1] = s * (x * y - z * w); R[0, 2] = s * (x * z + y * w)
-    R[1, 0] = s * (x * y + z * w); R[1, 1] = 1 - s * (x * x + z * z); R[1, 2] = s * (y * z - x * w)
-    R[2, 0] = s * (x * z - y * w); R[2, 1] = s * (y * z + x * w); R[2, 2] = 1 - s * (x * x + y * y)
+_W = earth.OMEGA_E
 
 
 @nb.njit(cache=True)
 def _deriv(x, v, q, fb, wb, R, dx, dv, dq):
-    _rot(q, R)
+    quat_to_R_into(q, R, True)
     # omega_eb_b = omega_ib_b - R^T omega_ie (omega_ie = [0, 0, W])
     w0 = wb[0] - R[2, 0] * _W
     w1 = wb[1] - R[2, 1] * _W
     w2 = wb[2] - R[2, 2] * _W
-    g0, g1, g2 = _gravity(x[0], x[1], x[2])
+    g0, g1, g2 = gravity(x[0], x[1], x[2])
     for i in range(3):
         dx[i] = v[i]
         dv[i] = R[i, 0] * fb[0] + R[i, 1] * fb[1] + R[i, 2] * fb[2]
@@ -87,6 +64,15 @@ def _deriv(x, v, q, fb, wb, R, dx, dv, dq):
 def _calibrate(raw, A, b, out):
     for i in range(3):
         out[i] = A[i, 0] * (raw[0] - b[0]) + A[i, 1] * (raw[1] - b[1]) + A[i, 2] * (raw[2] - b[2])
+
+
+@nb.njit(cache=True)
+def _stage(x, v, q, c, kx, kv, kq, xs, vs, qs):
+    """The state of an RK4 stage, ``(xs, vs, qs) = (x, v, q) + c k``."""
+    for j in range(3):
+        xs[j] = x[j] + c * kx[j]; vs[j] = v[j] + c * kv[j]
+    for j in range(4):
+        qs[j] = q[j] + c * kq[j]
 
 
 @nb.njit(cache=True)
@@ -140,20 +126,11 @@ def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, ave
             stats[3 + j] += wm[j]
         nsum += 1
         _deriv(x, v, q, fa, wa, R, k1x, k1v, k1q)
-        for j in range(3):
-            xs[j] = x[j] + 0.5 * h * k1x[j]; vs[j] = v[j] + 0.5 * h * k1v[j]
-        for j in range(4):
-            qs[j] = q[j] + 0.5 * h * k1q[j]
+        _stage(x, v, q, 0.5 * h, k1x, k1v, k1q, xs, vs, qs)
         _deriv(xs, vs, qs, fm, wm, R, k2x, k2v, k2q)
-        for j in range(3):
-            xs[j] = x[j] + 0.5 * h * k2x[j]; vs[j] = v[j] + 0.5 * h * k2v[j]
-        for j in range(4):
-            qs[j] = q[j] + 0.5 * h * k2q[j]
+        _stage(x, v, q, 0.5 * h, k2x, k2v, k2q, xs, vs, qs)
         _deriv(xs, vs, qs, fm, wm, R, k3x, k3v, k3q)
-        for j in range(3):
-            xs[j] = x[j] + h * k3x[j]; vs[j] = v[j] + h * k3v[j]
-        for j in range(4):
-            qs[j] = q[j] + h * k3q[j]
+        _stage(x, v, q, h, k3x, k3v, k3q, xs, vs, qs)
         _deriv(xs, vs, qs, fb_, wb_, R, k4x, k4v, k4q)
         for j in range(3):
             x[j] += h / 6.0 * (k1x[j] + 2.0 * k2x[j] + 2.0 * k3x[j] + k4x[j])
@@ -240,65 +217,3 @@ def stationary_imu(x_e, q_eb):
     R = quat_to_matrix(q_eb)
     g = earth.gravity_e(x_e)
     return -R.T @ g, R.T @ earth.OMEGA_IE_E
-
-
-# --- small allocation-light rotation helpers for the filter loop (tested against scipy) ---
-
-@nb.njit(cache=True)
-def quat_to_R(q):
-    """Scalar-last quaternion -> rotation matrix (normalising)."""
-    R = np.empty((3, 3))
-    _rot(q, R)
-    return R
-
-
-@nb.njit(cache=True)
-def R_to_quat(R):
-    """Rotation matrix -> scalar-last unit quaternion with w >= 0 (Shepperd)."""
-    q = np.empty(4)
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr >= R[0, 0] and tr >= R[1, 1] and tr >= R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q[3] = 0.25 * s
-        q[0] = (R[2, 1] - R[1, 2]) / s
-        q[1] = (R[0, 2] - R[2, 0]) / s
-        q[2] = (R[1, 0] - R[0, 1]) / s
-    elif R[0, 0] >= R[1, 1] and R[0, 0] >= R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q[0] = 0.25 * s
-        q[1] = (R[0, 1] + R[1, 0]) / s
-        q[2] = (R[0, 2] + R[2, 0]) / s
-        q[3] = (R[2, 1] - R[1, 2]) / s
-    elif R[1, 1] >= R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q[1] = 0.25 * s
-        q[0] = (R[0, 1] + R[1, 0]) / s
-        q[2] = (R[1, 2] + R[2, 1]) / s
-        q[3] = (R[0, 2] - R[2, 0]) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q[2] = 0.25 * s
-        q[0] = (R[0, 2] + R[2, 0]) / s
-        q[1] = (R[1, 2] + R[2, 1]) / s
-        q[3] = (R[1, 0] - R[0, 1]) / s
-    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    sg = 1.0 if q[3] >= 0 else -1.0
-    for i in range(4):
-        q[i] *= sg / n
-    return q
-
-
-@nb.njit(cache=True)
-def rotvec_to_R(phi):
-    """Rotation vector -> matrix, exp([phi x]) (Rodrigues with series near zero)."""
-    a = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    if a < 1e-4:
-        s = 1.0 - a * a / 6.0
-        c = 0.5 - a * a / 24.0
-    else:
-        s = math.sin(a) / a
-        c = (1.0 - math.cos(a)) / (a * a)
-    K = np.zeros((3, 3))
-    K[0, 1] = -phi[2]; K[0, 2] = phi[1]; K[1, 0] = phi[2]
-    K[1, 2] = -phi[0]; K[2, 0] = -phi[1]; K[2, 1] = phi[0]
-    return np.eye(3) + s * K + c * (K @ K)

@@ -179,7 +179,7 @@ def test_gps_rows_kernel_equals_measurement_functions():
     """The navigator's GPS kernel reproduces gps_position / gps_velocity (lever arm 1 m, rate
     0.1 rad/s): innovations and Jacobian blocks to 1e-12."""
     from nav.measurements import gps_position, gps_velocity
-    from nav.navigator import gps_rows_kernel
+    from nav.updates import gps_rows_kernel
     from nav.rotation import rotvec_to_matrix
     rng = np.random.default_rng(5)
     R = rotvec_to_matrix(rng.normal(size=3))
