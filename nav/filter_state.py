@@ -124,10 +124,11 @@ class FilterState:
         propagate_block(self.nav, self.cal_m, ts, fw, traj, k, k_end, avg, self.model, self.gm_idx, self.P_c,
                         self.zeta, self.P, A_out, d_out)
 
-    def feedback(self, dx: np.ndarray) -> None:
-        """Closed-loop correction with the estimated errors ``dx`` and reset (:func:`feedback_kernel`)."""
-        if feedback_kernel(dx, self.nav, self.fed, self.fb):
-            self._set_calibration(self.affine_estimated)
+    def calibration_changed(self) -> None:
+        """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into
+        the IMU error estimates
+        (only the biases when no scale factor or misalignment is estimated: A stays as it is)."""
+        self._set_calibration(self.affine_estimated)
 
     def extrapolate(self, f, w, dt_m):
         """The state ``dt_m`` seconds after the current sample (:func:`extrapolate`)."""
@@ -143,10 +144,9 @@ def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c,
     (:func:`nav.error_state.propagate_covariance`, P in place; 003 eqs. (41)-(45):
     ``P_zeta += (1 - phi^2) P_c``) and the decay of the zeta estimates. Packed arguments: module
     docstring; ``fw`` (N, 2, 3) calibrated-to-be specific force and rate per sample."""
-    x, v, q = nav[0:3], nav[3:6], nav[6:10]
+    x, q = nav[0:3], nav[6:10]
     stats = np.empty(6)
-    ins.ins_kernel(x, v, q, ts, fw[:, 0], fw[:, 1], k, k_end, cal_m[0, :3], cal_m[0, 3], cal_m[1, :3], cal_m[1, 3],
-                   traj[:, 0:3], traj[:, 3:6], traj[:, 6:10], stats, avg)
+    ins.ins_kernel(nav, ts, fw, k, k_end, cal_m, traj, stats, avg)
     dt = ts[k_end] - ts[k]
     n = P.shape[0]
     A = _nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:6], n, model[0], model[1])

@@ -61,9 +61,10 @@ def _deriv(x, v, q, fb, wb, R, dx, dv, dq):
 
 
 @nb.njit(cache=True)
-def _calibrate(raw, A, b, out):
+def _calibrate(raw, c, out):
+    """``A (raw - b)`` with ``c`` (4, 3): rows 0..2 A, row 3 b."""
     for i in range(3):
-        out[i] = A[i, 0] * (raw[0] - b[0]) + A[i, 1] * (raw[1] - b[1]) + A[i, 2] * (raw[2] - b[2])
+        out[i] = c[i, 0] * (raw[0] - c[3, 0]) + c[i, 1] * (raw[1] - c[3, 1]) + c[i, 2] * (raw[2] - c[3, 2])
 
 
 @nb.njit(cache=True)
@@ -76,19 +77,23 @@ def _stage(x, v, q, c, kx, kv, kq, xs, vs, qs):
 
 
 @nb.njit(cache=True)
-def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, average=False):
+def ins_kernel(nav, t, fw, i0, i1, cal_m, traj, stats, average=False):
     """Integrate from sample ``i0`` to ``i1`` (inclusive; ``i1 < i0`` runs backwards).
 
-    ``x, v, q`` hold the state at ``t[i0]`` and are updated in place to ``t[i1]``; the state at
-    every sample from i0 to i1 is written into X, V, Q (rows indexed like ``t``). ``stats`` (6,)
+    ``nav`` (10,) holds x_e, v_e, q_eb at ``t[i0]`` and is updated in place to ``t[i1]``; the
+    state at every sample from i0 to i1 is written into the rows of ``traj`` (N, 10) (indexed like
+    ``t``). ``fw`` (N, 2, 3): specific force and angular rate of each sample. ``stats`` (6,)
     receives the mean calibrated specific force and angular rate over the interval (used for the
-    covariance transition). Samples are calibrated with ``A (raw - b)``.
+    covariance transition). Samples are calibrated with ``A (raw - b)``, ``cal_m`` (2, 4, 3) holding
+    A (rows 0..2) and b (row 3) of the accelerometers and the gyros.
 
     ``average=False``: samples are instantaneous values, interpolated linearly within a step.
     ``average=True``: sample k is the mean over (t[k-1], t[k]] (rate output of an integrating IMU,
     or increments divided by the interval) and is held over that step.
     """
     step = 1 if i1 >= i0 else -1
+    x, v, q = nav[0:3], nav[3:6], nav[6:10]
+    cf, cw = cal_m[0], cal_m[1]
     R = np.empty((3, 3))
     fa = np.empty(3); fb_ = np.empty(3); fm = np.empty(3)
     wa = np.empty(3); wb_ = np.empty(3); wm = np.empty(3)
@@ -99,26 +104,24 @@ def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, ave
     xs = np.empty(3); vs = np.empty(3); qs = np.empty(4)
     for j in range(6):
         stats[j] = 0.0
-    for j in range(3):
-        X[i0, j] = x[j]; V[i0, j] = v[j]
-    for j in range(4):
-        Q[i0, j] = q[j]
+    for j in range(10):
+        traj[i0, j] = nav[j]
     i = i0
     nsum = 0
-    _calibrate(f[i0], A_f, b_f, fa)
-    _calibrate(w[i0], A_w, b_w, wa)
+    _calibrate(fw[i0, 0], cf, fa)
+    _calibrate(fw[i0, 1], cw, wa)
     while i != i1:
         k = i + step
         h = t[k] - t[i]
         if average:
             m = k if k > i else i
-            _calibrate(f[m], A_f, b_f, fb_)
-            _calibrate(w[m], A_w, b_w, wb_)
+            _calibrate(fw[m, 0], cf, fb_)
+            _calibrate(fw[m, 1], cw, wb_)
             for j in range(3):
                 fa[j] = fb_[j]; wa[j] = wb_[j]
         else:
-            _calibrate(f[k], A_f, b_f, fb_)
-            _calibrate(w[k], A_w, b_w, wb_)
+            _calibrate(fw[k, 0], cf, fb_)
+            _calibrate(fw[k, 1], cw, wb_)
         for j in range(3):
             fm[j] = 0.5 * (fa[j] + fb_[j])
             wm[j] = 0.5 * (wa[j] + wb_[j])
@@ -143,10 +146,9 @@ def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, ave
         for j in range(4):
             q[j] /= nq
         for j in range(3):
-            X[k, j] = x[j]; V[k, j] = v[j]
             fa[j] = fb_[j]; wa[j] = wb_[j]
-        for j in range(4):
-            Q[k, j] = q[j]
+        for j in range(10):
+            traj[k, j] = nav[j]
         i = k
     if nsum > 0:
         for j in range(6):
@@ -198,17 +200,19 @@ def propagate(x0, v0, q0, t_s, f_b, w_b, *, backward: bool = False, calibration:
     if t.size > 1 and not np.all(np.diff(t) > 0):
         raise ValueError("t_s: sample times must be strictly increasing")
     cal = calibration or ImuCalibration()
-    A_f, b_f, A_w, b_w = cal.matrices()
-    x = as_vectors(x0, "x0").astype(float).copy()
-    v = as_vectors(v0, "v0").astype(float).copy()
-    q = quat_normalize(q0).copy()
+    cal_m = np.empty((2, 4, 3))
+    cal_m[0, :3], cal_m[0, 3], cal_m[1, :3], cal_m[1, 3] = cal.matrices()
+    nav = np.concatenate([as_vectors(x0, "x0").astype(float), as_vectors(v0, "v0").astype(float), quat_normalize(q0)])
     N = t.size
-    X = np.empty((N, 3)); V = np.empty((N, 3)); Q = np.empty((N, 4))
+    fw = np.empty((N, 2, 3))
+    fw[:, 0], fw[:, 1] = f, w
+    traj = np.empty((N, 10))
     i0, i1 = (N - 1, 0) if backward else (0, N - 1)
     if sample not in ("point", "average"):
         raise ValueError(f"sample: expected 'point' or 'average', got {sample!r}")
-    ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, np.empty(6), sample == "average")
-    return X, V, Q
+    ins_kernel(nav, t, fw, i0, i1, cal_m, traj, np.empty(6), sample == "average")
+    return (np.ascontiguousarray(traj[:, 0:3]), np.ascontiguousarray(traj[:, 3:6]),
+            np.ascontiguousarray(traj[:, 6:10]))
 
 
 def stationary_imu(x_e, q_eb):

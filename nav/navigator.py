@@ -460,7 +460,7 @@ class _Loop:
             e_ptr += 1
             src = self.sources[si]
             dt_m = (t_m - self.t_l[k]) / NS - src.clock_shift(j, st)
-            src.fill(j, t_m, st.extrapolate(self.fw[kk, 0], self.fw[kk, 1], dt_m), st, stack)
+            src.fill(j, t_m, (self.fw[kk, 0], self.fw[kk, 1], dt_m), st, stack)
         dx = stack.apply(st, self.rec.innovations, self.rejected, self.t_l[k])
         self.rec.triad_pairs(stack.triad)
         return e_ptr, dx

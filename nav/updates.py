@@ -11,12 +11,14 @@ supplies, for its measurement ``j``:
   measurement not later than its predecessor in the same stream);
 * ``clock_shift(j, st)``: seconds subtracted from the time between the current IMU sample and the
   stamp (a camera clock offset estimate), 0 for GPS;
-* ``fill(j, t_ns, ep, st, stack)``: the candidate blocks of the measurement, appended to the
+* ``fill(j, t_ns, at, st, stack)``: the candidate blocks of the measurement, appended to the
   epoch's :class:`EpochStack`: ``stack.reserve(m)`` gives the first of m zeroed rows of the
   stacked Jacobian ``stack.H`` (m, n) and innovation ``stack.s``; ``stack.add(...)`` records each
-  block with its kind, camera, noise R and input problem (a reason string, or None). ``ep`` is the
-  state extrapolated to the stamp (``x_m, v_m, R_m, w_eb``, :func:`nav.filter_state.extrapolate`),
-  ``st`` the :class:`nav.filter_state.FilterState` (layout, P, fed-back estimates).
+  block with its kind, camera, noise R and input problem (a reason string, or None). ``at`` is
+  ``(f, w, dt_m)``: the IMU sample covering the interval to the stamp and its length [s], from
+  which ``st.extrapolate(*at)`` gives the state at the stamp (``x_m, v_m, R_m, w_eb``,
+  :func:`nav.filter_state.extrapolate`; a kernel may do it itself, as :func:`gps_fill_kernel`);
+  ``st`` is the :class:`nav.filter_state.FilterState` (layout, P, fed-back estimates).
 
 The epoch (:meth:`EpochStack.apply`) then gates every block without an input problem on its own
 NIS (its diagonal block of ``S = H P H^T + R`` with the prior P, chi-square gate of its dimension)
@@ -37,7 +39,9 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from nav.earth import OMEGA_E
 from nav.ephemeris import moon_position_e, sun_position_e
+from nav.filter_state import extrapolate, feedback_kernel
 from nav.measurements import (predict_vector, target_direction_e, vector_covariance_problem,
                               vector_covariance_problems, vector_jacobians, vector_rate)
 from nav.rotation import tangent_basis
@@ -73,6 +77,7 @@ class EpochStack:
         self.triad = {}
         self._p = gate_probability
         self._gates = {}
+        self._patterns = {}
 
     def reset(self) -> None:
         self.m = 0
@@ -94,24 +99,30 @@ class EpochStack:
     def add(self, t_ns: int, kind: str, camera: int, o: int, dim: int, R, problem) -> None:
         self.blocks.append((t_ns, kind, camera, o, dim, R, problem))
 
-    def gate(self, dim: int) -> float:
-        if dim not in self._gates:
-            self._gates[dim] = chi2_gate(dim, self._p)
-        return self._gates[dim]
+    def _pattern(self, sizes: tuple):
+        """Row offsets (array and list) and chi-square gates of a sequence of block sizes."""
+        pat = self._patterns.get(sizes)
+        if pat is None:
+            offs = np.zeros(len(sizes) + 1, dtype=np.int64)
+            np.cumsum(sizes, out=offs[1:])
+            for d in sizes:
+                if d not in self._gates:
+                    self._gates[d] = chi2_gate(d, self._p)
+            pat = self._patterns[sizes] = (offs, offs.tolist(), np.array([self._gates[d] for d in sizes]))
+        return pat
 
     def apply(self, st, innovations: list, rejected, t_k: int) -> np.ndarray | None:
         """Gate the blocks, apply the accepted ones (P in place) and feed back: the correction
         ``dx`` when an update was applied, else None. Each block's innovation is appended to
         ``innovations``; rejections are counted in ``rejected`` and logged."""
         good = [b for b in self.blocks if b[6] is None]
-        status, dx, res = GATED, None, None
+        status, dx = GATED, None
         if good:
-            status, dx, res = self._update(st, good)
+            status, dx, S_all, offs, code, nis_l = self._update(st, good)
         gi = 0
         for t_m, kind, cam, o, dim, R, bad in self.blocks:
             nis, S = np.nan, None
             if bad is None:
-                S_all, offs, code, nis_l = res
                 if code[gi] != NONFINITE:
                     S = S_all[offs[gi]:offs[gi + 1], offs[gi]:offs[gi + 1]].copy()
                 nis = nis_l[gi]
@@ -125,7 +136,6 @@ class EpochStack:
                 rejected[f"{kind}_{bad}"] += 1
                 log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
         if status == OK:
-            st.feedback(dx)
             return dx
         if good and status != GATED:
             rejected[f"batch_{REASONS[int(status)]}"] += 1
@@ -133,11 +143,9 @@ class EpochStack:
         return None
 
     def _update(self, st, good):
-        """:func:`nav.schmidt.update_kernel` on the blocks without input problems."""
-        sizes = [b[4] for b in good]
-        offs = np.zeros(len(good) + 1, dtype=np.int64)
-        np.cumsum(sizes, out=offs[1:])
-        m = int(offs[-1])
+        """:func:`update_feedback_kernel` on the blocks without input problems."""
+        offs, offs_l, gates = self._pattern(tuple(b[4] for b in good))
+        m = offs_l[-1]
         if m == self.m:
             H, s = self.H[:m], self.s[:m]
         else:
@@ -145,12 +153,26 @@ class EpochStack:
             H, s = self.H[rows], self.s[rows]
         R = np.zeros((m, m))
         for i, b in enumerate(good):
-            R[offs[i]:offs[i + 1], offs[i]:offs[i + 1]] = b[5]
-        gates = np.array([self.gate(d) for d in sizes])
+            R[offs_l[i]:offs_l[i + 1], offs_l[i]:offs_l[i + 1]] = b[5]
         S, nis = np.empty((m, m)), np.empty(len(good))
         code, dx = np.empty(len(good), dtype=np.int64), np.empty(st.n)
-        status = update_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx)
-        return status, dx, (S, offs.tolist(), code.tolist(), nis.tolist())
+        status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
+                                                 st.nav, st.fed, st.fb)
+        if changed:
+            st.calibration_changed()
+        return status, dx, S, offs_l, code.tolist(), nis.tolist()
+
+
+@nb.njit(cache=True)
+def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, fed, fb):
+    """The gated stacked Schmidt update (:func:`nav.schmidt.update_kernel`, arguments as there)
+    and, when it is applied, the feedback of ``dx`` (:func:`nav.filter_state.feedback_kernel`).
+    Returns ``(status, IMU calibration changed)``."""
+    status = update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx)
+    changed = False
+    if status == OK:
+        changed = feedback_kernel(dx, nav, fed, fb)
+    return status, changed
 
 
 class GpsFixes:
@@ -177,15 +199,22 @@ class GpsFixes:
     def clock_shift(self, j: int, st) -> float:
         return 0.0
 
-    def fill(self, j: int, t_m: int, ep, st, stack: EpochStack) -> None:
+    def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
         m = 6 if self.has_v else 3
         o = stack.reserve(m)
-        x_m, v_m, R_m, w_eb = ep
-        gps_rows_kernel(x_m, v_m, R_m, w_eb, self.lever, self.x[j], self.v[j], self.has_v, self.cols,
+        f, w, dt_m = at
+        gps_fill_kernel(st.nav, f, w, dt_m, self.lever, self.x[j], self.v[j], self.has_v, self.cols,
                         stack.H[o:o + m], stack.s[o:o + m])
         stack.add(t_m, "gps_pos", -1, o, 3, self.P_x[j], self.bad_x[j])
         if self.has_v:
             stack.add(t_m, "gps_vel", -1, o + 3, 3, self.P_v[j], self.bad_v[j])
+
+
+@nb.njit(cache=True)
+def gps_fill_kernel(nav, f, w, dt_m, lever, xg, vg, has_v, cols, H, s):
+    """:func:`nav.filter_state.extrapolate` to the fix's time, then :func:`gps_rows_kernel`."""
+    x_m, v_m, R_m, w_eb = extrapolate(nav, f, w, dt_m, OMEGA_E)
+    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, cols, H, s)
 
 
 @nb.njit(cache=True)
@@ -264,15 +293,15 @@ class CameraVectors:
         bad = self.problems[j] if self.problems is not None else vector_covariance_problem(P_c, e_c)
         return e_c, P_c, bad
 
-    def fill(self, j: int, t_m: int, ep, st, stack: EpochStack) -> None:
+    def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
         cam, target = self.camera[j], self.target[j]
         o = stack.reserve(2)
+        x_m, v_m, R_m, w_eb = st.extrapolate(*at)
         e_c, P_c, bad = self._problem(j)
         if bad:
             stack.s[o:o + 2] = np.nan
             stack.add(t_m, target, cam, o, 2, np.eye(2), bad)
             return
-        x_m, v_m, R_m, w_eb = ep
         lay, n = self.layout, st.n
         R_bc = st.R_bc[cam]
         tpos = self.body_pos[target][j] if target in self.body_pos else None
