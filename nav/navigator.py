@@ -462,7 +462,8 @@ class _Loop:
             dt_m = (t_m - self.t_l[k]) / NS - src.clock_shift(j, st)
             src.fill(j, t_m, (self.fw[kk, 0], self.fw[kk, 1], dt_m), st, stack)
         dx = stack.apply(st, self.rec.innovations, self.rejected, self.t_l[k])
-        self.rec.triad_pairs(stack.triad)
+        if stack.triad:
+            self.rec.triad_pairs(stack.triad)
         return e_ptr, dx
 
 

@@ -12,9 +12,10 @@ supplies, for its measurement ``j``:
 * ``clock_shift(j, st)``: seconds subtracted from the time between the current IMU sample and the
   stamp (a camera clock offset estimate), 0 for GPS;
 * ``fill(j, t_ns, at, st, stack)``: the candidate blocks of the measurement, appended to the
-  epoch's :class:`EpochStack`: ``stack.reserve(m)`` gives the first of m zeroed rows of the
-  stacked Jacobian ``stack.H`` (m, n) and innovation ``stack.s``; ``stack.add(...)`` records each
-  block with its kind, camera, noise R and input problem (a reason string, or None). ``at`` is
+  epoch's :class:`EpochStack`: ``stack.reserve(m)`` gives the first of m rows (the source writes
+  them whole) of the stacked Jacobian ``stack.H`` (m, n) and innovation ``stack.s``;
+  ``stack.add(...)`` records each block with its kind, camera, noise R and input problem (a
+  reason string, or None). ``at`` is
   ``(f, w, dt_m)``: the IMU sample covering the interval to the stamp and its length [s], from
   which ``st.extrapolate(*at)`` gives the state at the stamp (``x_m, v_m, R_m, w_eb``,
   :func:`nav.filter_state.extrapolate`; a kernel may do it itself, as :func:`gps_fill_kernel`);
@@ -85,14 +86,13 @@ class EpochStack:
         self.triad = {}
 
     def reserve(self, m: int) -> int:
-        """First of ``m`` new zeroed rows of ``H`` and ``s``."""
+        """First of ``m`` new rows of ``H`` and ``s`` (the source writes them whole)."""
         o = self.m
         if o + m > self.s.size:
             cap = 2 * (o + m)
             H, s = np.zeros((cap, self.H.shape[1])), np.empty(cap)
             H[:o], s[:o] = self.H[:o], self.s[:o]
             self.H, self.s = H, s
-        self.H[o:o + m] = 0.0
         self.m = o + m
         return o
 
@@ -100,7 +100,8 @@ class EpochStack:
         self.blocks.append((t_ns, kind, camera, o, dim, R, problem))
 
     def _pattern(self, sizes: tuple):
-        """Row offsets (array and list) and chi-square gates of a sequence of block sizes."""
+        """For a sequence of block sizes: row offsets (array and list), chi-square gates, and the
+        update's work arrays (R, zero off the diagonal blocks; S; nis; code), reused."""
         pat = self._patterns.get(sizes)
         if pat is None:
             offs = np.zeros(len(sizes) + 1, dtype=np.int64)
@@ -108,7 +109,10 @@ class EpochStack:
             for d in sizes:
                 if d not in self._gates:
                     self._gates[d] = chi2_gate(d, self._p)
-            pat = self._patterns[sizes] = (offs, offs.tolist(), np.array([self._gates[d] for d in sizes]))
+            m, nb_ = int(offs[-1]), len(sizes)
+            pat = self._patterns[sizes] = (offs, offs.tolist(), np.array([self._gates[d] for d in sizes]),
+                                           np.zeros((m, m)), np.empty((m, m)), np.empty(nb_),
+                                           np.empty(nb_, dtype=np.int64))
         return pat
 
     def apply(self, st, innovations: list, rejected, t_k: int) -> np.ndarray | None:
@@ -144,18 +148,16 @@ class EpochStack:
 
     def _update(self, st, good):
         """:func:`update_feedback_kernel` on the blocks without input problems."""
-        offs, offs_l, gates = self._pattern(tuple(b[4] for b in good))
+        offs, offs_l, gates, R, S, nis, code = self._pattern(tuple([b[4] for b in good]))
         m = offs_l[-1]
         if m == self.m:
             H, s = self.H[:m], self.s[:m]
         else:
             rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in good])
             H, s = self.H[rows], self.s[rows]
-        R = np.zeros((m, m))
         for i, b in enumerate(good):
             R[offs_l[i]:offs_l[i + 1], offs_l[i]:offs_l[i + 1]] = b[5]
-        S, nis = np.empty((m, m)), np.empty(len(good))
-        code, dx = np.empty(len(good), dtype=np.int64), np.empty(st.n)
+        dx = np.empty(st.n)
         status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
                                                  st.nav, st.fed, st.fb)
         if changed:
@@ -212,8 +214,10 @@ class GpsFixes:
 
 @nb.njit(cache=True)
 def gps_fill_kernel(nav, f, w, dt_m, lever, xg, vg, has_v, cols, H, s):
-    """:func:`nav.filter_state.extrapolate` to the fix's time, then :func:`gps_rows_kernel`."""
+    """:func:`nav.filter_state.extrapolate` to the fix's time, then :func:`gps_rows_kernel` into
+    the rows ``H`` (zeroed first) and ``s``."""
     x_m, v_m, R_m, w_eb = extrapolate(nav, f, w, dt_m, OMEGA_E)
+    H[:, :] = 0.0
     gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, cols, H, s)
 
 
@@ -299,6 +303,7 @@ class CameraVectors:
         x_m, v_m, R_m, w_eb = st.extrapolate(*at)
         e_c, P_c, bad = self._problem(j)
         if bad:
+            stack.H[o:o + 2] = 0.0
             stack.s[o:o + 2] = np.nan
             stack.add(t_m, target, cam, o, 2, np.eye(2), bad)
             return
