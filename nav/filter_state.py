@@ -16,7 +16,7 @@ are packed so that the kernels take a few arrays instead of one argument per qua
   A_f and row 3 is b_f, ``[1]`` the same for the gyro;
 * ``model`` (3 + n,): omega_ie, GM, T_c and the white process-noise rate of every state;
   ``gm_idx`` (6 + groups,) int64: the first column of the six IMU error groups (-1: absent, as
-  :func:`nav.error_state._nav_transition` reads them) and of every zeta group.
+  :func:`nav.error_state.nav_transition` reads them) and of every zeta group.
 
 A new state group is a group in :func:`nav.error_state.build_layout` (with its tuning entry), its
 columns in the transition if it is not a constant, and a feedback row in :func:`feedback_table`.
@@ -29,7 +29,7 @@ import numpy as np
 from nav import ins
 from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
 from nav.earth import GM, OMEGA_E
-from nav.error_state import IMU_GROUPS, StateLayout, _nav_transition, propagate_covariance
+from nav.error_state import IMU_GROUPS, StateLayout, nav_transition, propagate_covariance
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.tuning import Tuning
@@ -139,7 +139,7 @@ class FilterState:
 def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c, zeta, P, A_out, d_out):
     """One covariance block from sample k to k_end: the INS (:func:`nav.ins.ins_kernel`; ``nav``
     updated in place, the states written into ``traj`` (N, 10) rows x, v, q), the block transition
-    (:func:`nav.error_state._nav_transition` into ``A_out`` (9, n); ``d_out`` (n,) the diagonal of
+    (:func:`nav.error_state.nav_transition` into ``A_out`` (9, n); ``d_out`` (n,) the diagonal of
     the other rows), the covariance propagation with white and Gauss-Markov process noise
     (:func:`nav.error_state.propagate_covariance`, P in place; 003 eqs. (41)-(45):
     ``P_zeta += (1 - phi^2) P_c``) and the decay of the zeta estimates. Packed arguments: module
@@ -149,7 +149,7 @@ def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c,
     ins.ins_kernel(nav, ts, fw, k, k_end, cal_m, traj, stats, avg)
     dt = ts[k_end] - ts[k]
     n = P.shape[0]
-    A = _nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:6], n, model[0], model[1])
+    A = nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:6], n, model[0], model[1])
     phi = np.exp(-dt / model[2])
     for i in range(9):
         for j in range(n):

@@ -13,7 +13,7 @@ Processing
   Over a block the transition is ``Phi = I + F dt + (F dt)^2/2`` with F evaluated once, with the
   block-mean calibrated specific force and rate and the attitude at the block's end
   (:func:`nav.error_state.error_dynamics`; the compiled form is
-  :func:`nav.error_state._nav_transition`), and the white process noise is added as ``q dt``.
+  :func:`nav.error_state.nav_transition`), and the white process noise is added as ``q dt``.
   Effect of this choice: in the coast (rates < 1 deg/s, |f| of a few mg) the attitude moves
   < 0.1 deg in a block, so F is constant to 2e-3 relative and the neglected third-order terms are
   ~1e-9 of the state; on the atek coast (20 Hz IMU, 10 Hz GPS, table 3 tuning) halving the

@@ -82,12 +82,6 @@ def quat_multiply(p, q) -> np.ndarray:
     return np.concatenate([v, w], axis=-1)
 
 
-def quat_conjugate(q) -> np.ndarray:
-    """Inverse of a unit quaternion."""
-    q = as_vectors(q, "q", 4)
-    return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
-
-
 def rotvec_to_quat(phi) -> np.ndarray:
     """Rotation vector (axis * angle) -> unit quaternion; exact, with a series near zero."""
     phi = as_vectors(phi, "phi")
@@ -121,14 +115,6 @@ def small_angle_update(R, psi) -> np.ndarray:
     """Apply an attitude correction: ``exp([psi x]) @ R``, the exact form of
     ``(I + [psi x]) @ R`` (CONVENTIONS "Rotations"; 003 eq. (50)) that keeps R orthonormal."""
     return rotvec_to_matrix(psi) @ as_matrices(R, "R")
-
-
-def orthonormalize(R) -> np.ndarray:
-    """Nearest rotation matrix (polar decomposition by SVD); removes accumulated round-off."""
-    U, _, Vt = np.linalg.svd(as_matrices(R, "R"))
-    D = np.ones(U.shape[:-1])
-    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
-    return (U * D[..., None, :]) @ Vt
 
 
 def tangent_basis(e) -> np.ndarray:

@@ -50,11 +50,6 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
 
 
-def propagate(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
-    """``Phi P Phi^T + Qd``, symmetrised."""
-    return symmetrize(Phi @ P @ Phi.T + Qd)
-
-
 @nb.njit(cache=True)
 def _cholesky(S, L):
     """Lower Cholesky factor of the small SPD ``S`` into ``L``; False if a pivot is not > 0

@@ -45,7 +45,7 @@ class Tuning:
     accel_bias ... camera_misalignment : StateGroupTuning
         Error groups of 003 eq. (46), generalised (scale factor and misalignment of the IMU).
     camera_clock_offset : StateGroupTuning
-        Time offset of each camera's clock against the IMU time base [s] (issue 9; 003 §7.3), one
+        Time offset of each camera's clock against the IMU time base [s] (003 §7.3), one
         constant state per camera (:mod:`nav.clock_offset` gives the initial value and sigma).
         Off by default (not in table 3); TOML ``[states.camera_clock_offset]`` with ``sigma_ms``.
     vector_white : float
