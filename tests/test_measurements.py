@@ -193,6 +193,69 @@ def test_default_tuning_file_is_table3():
     assert t.camera_misalignment.mode == "E" and t.gyro_bias.mode == "C"
 
 
+_TABLE3_IN_FULL = """
+[imu]
+accel_white_noise_mg_rthz = 0.05
+accel_white_noise_extra_mg_rthz = 2.5
+gyro_white_noise_deg_rth = 0.05
+gyro_white_noise_extra_deg_rth = 2.5
+gyro_range_deg_s = 1000.0
+accel_range_g = 50.0
+max_gap_s = 0.5
+[states.accel_bias]
+mode = "E"
+sigma_mg = 2.0
+[states.accel_scale]
+mode = "C"
+sigma_ppm = 300.0
+[states.accel_misalignment]
+mode = "C"
+sigma_mrad = 2.0
+[states.gyro_bias]
+mode = "C"
+sigma_deg_h = 6.0
+[states.gyro_scale]
+mode = "C"
+sigma_ppm = 2000.0
+[states.gyro_misalignment]
+mode = "C"
+sigma_mrad = 2.0
+[states.camera_misalignment]
+mode = "E"
+sigma_deg = 1.0
+[states.camera_clock_offset]
+mode = "off"
+sigma_ms = 50.0
+[vectors]
+targets = ["hor", "sun"]
+white_noise = 0.005
+gm_mode = "C"
+correlation_time_s = 20.0
+gm_default_sigma_deg = 0.1
+[initial]
+attitude_sigma_deg = 2.0
+position_sigma_m = 10.0
+velocity_sigma_m_s = 0.1
+[filter]
+max_cov_interval_s = 0.1
+gate_probability = 0.99999
+"""
+
+
+def test_tuning_files_hold_overrides():
+    """A key left out keeps the dataclass default; a file listing every table 3 value gives the
+    defaults; an unknown key of any table is an error naming it."""
+    assert tuning_from_toml("") == Tuning()
+    assert tuning_from_toml(_TABLE3_IN_FULL) == Tuning()
+    t = tuning_from_toml("[filter]\nmax_cov_interval_s = 0.01\n[imu]\naccel_white_noise_extra_mg_rthz = 1.0\n")
+    assert t.max_cov_interval_s == 0.01 and t.gyro_white == Tuning().gyro_white
+    assert t.accel_white == pytest.approx(math.hypot(0.05, 1.0) * 1e-3 * 9.80665, rel=1e-15)
+    assert t.with_(max_cov_interval_s=0.1, accel_white=Tuning().accel_white) == Tuning()
+    for table in ("imu", "vectors", "initial", "filter"):
+        with pytest.raises(ValueError, match=rf"\[{table}\]: unknown key 'foo'"):
+            tuning_from_toml(f"[{table}]\nfoo = 1\n")
+
+
 def test_propagate_covariance_equals_block_transition():
     """The in-place propagation kernel (issue 7) equals BlockTransition.apply + q dt + the
     Gauss-Markov blocks, symmetrised (45 states; round-off: 1e-14 of |P|)."""
