@@ -1,5 +1,5 @@
 """Compiled (numba) helpers of the navigation package: skew matrix, quaternion and rotation-vector
-conversions and the J2 gravity, allocation-light forms for the kernels of :mod:`nav.ins`,
+conversions, the tangent-plane basis of a unit vector and the J2 gravity, allocation-light forms for the kernels of :mod:`nav.ins`,
 :mod:`nav.error_state` and the filter loop (:mod:`nav.filter_state`, :mod:`nav.updates`).
 
 Conventions as :mod:`nav.rotation` (CONVENTIONS "Rotations"): quaternions scalar-last, ``R_ab``
@@ -111,3 +111,24 @@ def rotvec_to_R(phi):
         c = (1.0 - math.cos(a)) / (a * a)
     K = skew(phi)
     return np.eye(3) + s * K + c * (K @ K)
+
+
+@nb.njit(cache=True)
+def tangent_basis(e):
+    """(3, 2) orthonormal basis ``[t1, t2]`` of the plane perpendicular to ``e`` (non-zero, finite;
+    normalised first): ``t1 = e x a / |e x a|`` with ``a`` the x axis (the y axis when e is within
+    26 deg of x), ``t2 = e x t1``. :func:`nav.rotation.tangent_basis` checks its argument and
+    calls this."""
+    e0, e1, e2 = e[0], e[1], e[2]
+    n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / n, e1 / n, e2 / n
+    if abs(e0) < 0.9:
+        t0, t1, t2 = 0.0, e2, -e1     # e x x_hat
+    else:
+        t0, t1, t2 = -e2, 0.0, e0     # e x y_hat
+    tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    a0, a1, a2 = t0 / tn, t1 / tn, t2 / tn
+    T = np.empty((3, 2))
+    T[0, 0], T[1, 0], T[2, 0] = a0, a1, a2
+    T[0, 1], T[1, 1], T[2, 1] = e1 * a2 - e2 * a1, e2 * a0 - e0 * a2, e0 * a1 - e1 * a0
+    return T

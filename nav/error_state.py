@@ -256,8 +256,8 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM):
 
 
 class TransitionBuilder:
-    """Builds :class:`BlockTransition` for a layout with preallocated index blocks (the fast path of
-    :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
+    """Builds :class:`BlockTransition` for a layout with the compiled :func:`nav_transition` (the
+    filter's form of :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
 
     def __init__(self, layout: StateLayout, tc: float):
         self.n = layout.n

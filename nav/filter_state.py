@@ -143,7 +143,7 @@ def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c,
     the other rows), the covariance propagation with white and Gauss-Markov process noise
     (:func:`nav.error_state.propagate_covariance`, P in place; 003 eqs. (41)-(45):
     ``P_zeta += (1 - phi^2) P_c``) and the decay of the zeta estimates. Packed arguments: module
-    docstring; ``fw`` (N, 2, 3) calibrated-to-be specific force and rate per sample."""
+    docstring; ``fw`` (N, 2, 3) the measured specific force and rate of each sample."""
     x, q = nav[0:3], nav[6:10]
     stats = np.empty(6)
     ins.ins_kernel(nav, ts, fw, k, k_end, cal_m, traj, stats, avg)

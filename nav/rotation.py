@@ -7,8 +7,6 @@ allocation-light forms used by the filter; everything is vectorised over leading
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from nav.checks import as_finite, as_matrices, as_vectors, unit
@@ -120,16 +118,12 @@ def small_angle_update(R, psi) -> np.ndarray:
 def tangent_basis(e) -> np.ndarray:
     """(3, 2) orthonormal basis ``[t1, t2]`` of the plane perpendicular to ``e`` (normalised first):
     ``t1 = e x a / |e x a|`` with ``a`` the x axis (the y axis when e is within 26 deg of x),
-    ``t2 = e x t1``. Scalar arithmetic: it is called per measurement and per fit."""
-    e0, e1, e2 = (float(v) for v in np.asarray(e, dtype=float).reshape(3))
-    n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-    if not n > 0.0:
+    ``t2 = e x t1`` (:func:`nav._kernels.tangent_basis`; it is called per measurement and per fit)."""
+    from nav._kernels import tangent_basis as kernel   # numba: imported when first needed
+    e = np.asarray(e, dtype=float).reshape(3)
+    if not float(np.dot(e, e)) > 0.0:
         raise ValueError("e: zero-length or non-finite vector has no tangent plane")
-    e0, e1, e2 = e0 / n, e1 / n, e2 / n
-    t = (0.0, e2, -e1) if abs(e0) < 0.9 else (-e2, 0.0, e0)   # e x x_hat, or e x y_hat
-    tn = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-    a0, a1, a2 = t[0] / tn, t[1] / tn, t[2] / tn
-    return np.array([[a0, e1 * a2 - e2 * a1], [a1, e2 * a0 - e0 * a2], [a2, e0 * a1 - e1 * a0]])
+    return kernel(e)
 
 
 def tangent_bases(e) -> np.ndarray:

@@ -48,7 +48,7 @@ from nav.measurements import (predict_vector, target_direction_e, vector_covaria
 from nav.rotation import tangent_basis
 from nav.schmidt import GATED, NONFINITE, OK, REASONS, chi2_gate, update_kernel
 
-log = logging.getLogger("nav.navigator")
+log = logging.getLogger("nav.navigator")   # the run's logger: rejections are part of its report
 
 NS = 1_000_000_000
 
