@@ -300,13 +300,13 @@ class CameraVectors:
     def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
         cam, target = self.camera[j], self.target[j]
         o = stack.reserve(2)
-        x_m, v_m, R_m, w_eb = st.extrapolate(*at)
         e_c, P_c, bad = self._problem(j)
         if bad:
             stack.H[o:o + 2] = 0.0
             stack.s[o:o + 2] = np.nan
             stack.add(t_m, target, cam, o, 2, np.eye(2), bad)
             return
+        x_m, v_m, R_m, w_eb = st.extrapolate(*at)
         lay, n = self.layout, st.n
         R_bc = st.R_bc[cam]
         tpos = self.body_pos[target][j] if target in self.body_pos else None
