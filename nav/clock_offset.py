@@ -375,8 +375,7 @@ def estimate_clock_offset(imu_t_ns, w_b, vec_t_ns, target, e_c, R_bc, *, sample:
         if gx.shape != (gt.size, 3) or gt.size < 2:
             raise ValueError(f"gps: expected t (M,) and x_e (M, 3) with M >= 2; got {gt.shape}, {gx.shape}")
         nadir = _NadirE0(gt, gx, q_eb0)
-    R_bc = np.asarray(R_bc, float)
-    prob = _PairProblem(gyro, t_s, tg, e, Pc, R_bc, (lo, hi), max_pair_s, nadir, fit_mounting)
+    prob = _PairProblem(gyro, t_s, tg, e, Pc, np.asarray(R_bc, float), (lo, hi), max_pair_s, nadir, fit_mounting)
     n_p = prob.i.size
     if n_p < 3:
         raise ValueError(f"vectors: only {n_p} frame pairs within {max_pair_s} s inside the IMU span for "
