@@ -1,6 +1,7 @@
 """Compiled (numba) helpers of the navigation package: skew matrix, quaternion and rotation-vector
-conversions, the tangent-plane basis of a unit vector and the J2 gravity, allocation-light forms for the kernels of :mod:`nav.ins`,
-:mod:`nav.error_state` and the filter loop (:mod:`nav.filter_state`, :mod:`nav.updates`).
+conversions, the tangent-plane basis of a unit vector and the J2 gravity, allocation-light forms
+for the kernels of :mod:`nav.ins`, :mod:`nav.error_state` and the filter loop
+(:mod:`nav.filter_state`, :mod:`nav.updates`).
 
 Conventions as :mod:`nav.rotation` (CONVENTIONS "Rotations"): quaternions scalar-last, ``R_ab``
 maps b into a. ``tests/test_ins.py`` checks them against scipy and :func:`nav.earth.gravity_e`.

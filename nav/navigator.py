@@ -249,11 +249,13 @@ def _initial_covariance(layout: StateLayout, init: InitialState, n_cam: int, clo
         raise ValueError(f"init.P0: expected ({n}, {n}) for this layout, got {P.shape}")
     clk0 = np.zeros(n_cam) if clock_offset_s is None else np.asarray(clock_offset_s, float).reshape(-1)
     if clk0.shape != (n_cam,) or not np.all(np.isfinite(clk0)):
-        raise ValueError(f"clock_offset_s: expected {n_cam} finite offsets [s] (one per camera), got {clock_offset_s!r}")
+        raise ValueError(f"clock_offset_s: expected {n_cam} finite offsets [s] (one per camera), "
+                         f"got {clock_offset_s!r}")
     if clock_offset_sigma_s is not None:
         sig0 = np.asarray(clock_offset_sigma_s, float).reshape(-1)
         if sig0.shape != (n_cam,) or not np.all(np.isfinite(sig0)) or np.any(sig0 <= 0):
-            raise ValueError(f"clock_offset_sigma_s: expected {n_cam} positive sigmas [s], got {clock_offset_sigma_s!r}")
+            raise ValueError(f"clock_offset_sigma_s: expected {n_cam} positive sigmas [s], "
+                             f"got {clock_offset_sigma_s!r}")
         for c in range(n_cam):
             nm = layout.clock_name(c)
             if layout.has(nm) and init.P0 is None:
