@@ -1,4 +1,4 @@
-"""Initial estimate of a camera's clock offset against the IMU time base (issue 9, 003 §7.3).
+"""Initial estimate of a camera's clock offset against the IMU time base (003 §7.3).
 
 003 §7.3: the ATEK cameras' clocks could not be synchronised with the system time. The offset is
 defined as in the simulator (``scenarios/sim/simulate.py``): a frame taken at IMU time ``t`` is
@@ -37,7 +37,7 @@ Search (robust to gaps and outliers)
    the IMU span for every candidate, so every candidate sees the same pairs.
 2. Noise scale ``k``: 1 with the given covariances (floored by the data's typical level), else
    the typical level (median over the grid of the median residual; the median of a chi-square
-   with 2 dof is 2 ln 2). A least-median-of-squares scale was tried and rejected (see the code).
+   with 2 dof is 2 ln 2); not the least median of squares (see the code for why).
    A truncated quadratic cost ``sum min(z^2, c^2)`` (``z = |r| / (k sigma_p)``, ``c^2`` the 99.9 %
    chi-square(2) point) on the grid picks the global minimum.
 3. Inliers (``z^2 < c^2``) at that point; golden-section search of the weighted least-squares
@@ -45,8 +45,8 @@ Search (robust to gaps and outliers)
 4. Uncertainty: Gauss-Newton curvature ``sigma^2 = k_post^2 / sum |dr/dtau|^2 / sigma_p^2`` with
    the posterior reduced chi-square ``k_post^2`` and ``dr/dtau`` the profile derivative (psi_c
    re-fitted), times :data:`SIGMA_INFLATION` (calibrated by Monte Carlo, see there). A block
-   bootstrap was tried and rejected: the information sits in a few RCS pulses, so resamples that
-   miss them made its standard deviation 3-8x too large, and its MAD 3x too small.
+   bootstrap does not fit this problem: the information sits in a few RCS pulses, so resamples
+   that miss them give a standard deviation 3-8x too large, and a MAD 3x too small.
 
 Mounting: with 1 deg mounting errors the pure rotation-change prediction (1) is off by
 ~1 deg x the pair's rotation (0.03 deg for 2 s at 0.9 deg/s: as large as the vision noise) and
@@ -366,21 +366,7 @@ def estimate_clock_offset(imu_t_ns, w_b, vec_t_ns, target, e_c, R_bc, *, sample:
     if not grid_step_s > 0 or not max_pair_s > 0:
         raise ValueError(f"grid_step_s and max_pair_s: expected > 0, got {grid_step_s}, {max_pair_s}")
     gyro = GyroAttitude(imu_t_ns, w_b, sample)
-    vt = np.asarray(vec_t_ns, dtype=np.int64)
-    e = np.asarray(e_c, float)
-    tg = np.asarray(target).astype(str)
-    if e.shape != (vt.size, 3) or tg.shape != (vt.size,):
-        raise ValueError(f"vectors: expected t (K,), target (K,), e_c (K, 3); got {vt.shape}, {tg.shape}, {e.shape}")
-    Pc = None if P_c is None else np.asarray(P_c, float)
-    if Pc is not None and Pc.shape != (vt.size, 3, 3):
-        raise ValueError(f"P_c: expected ({vt.size}, 3, 3), got {Pc.shape}")
-    nrm = np.linalg.norm(e, axis=1)
-    good = np.isfinite(nrm) & (nrm > 0)
-    if Pc is not None:
-        good &= np.all(np.isfinite(Pc), axis=(1, 2))
-    vt, e, tg = vt[good], e[good] / nrm[good, None], tg[good]
-    if Pc is not None:
-        Pc = Pc[good]
+    vt, e, tg, Pc = _usable_vectors(vec_t_ns, target, e_c, P_c)
     t_s = (vt - gyro.t0_ns).astype(float) / NS
     nadir = None
     if gps_t_ns is not None and gps_x_e is not None and q_eb0 is not None:
@@ -389,8 +375,7 @@ def estimate_clock_offset(imu_t_ns, w_b, vec_t_ns, target, e_c, R_bc, *, sample:
         if gx.shape != (gt.size, 3) or gt.size < 2:
             raise ValueError(f"gps: expected t (M,) and x_e (M, 3) with M >= 2; got {gt.shape}, {gx.shape}")
         nadir = _NadirE0(gt, gx, q_eb0)
-    R_bc = np.asarray(R_bc, float)
-    prob = _PairProblem(gyro, t_s, tg, e, Pc, R_bc, (lo, hi), max_pair_s, nadir, fit_mounting)
+    prob = _PairProblem(gyro, t_s, tg, e, Pc, np.asarray(R_bc, float), (lo, hi), max_pair_s, nadir, fit_mounting)
     n_p = prob.i.size
     if n_p < 3:
         raise ValueError(f"vectors: only {n_p} frame pairs within {max_pair_s} s inside the IMU span for "
@@ -416,8 +401,35 @@ def estimate_clock_offset(imu_t_ns, w_b, vec_t_ns, target, e_c, R_bc, *, sample:
         tau = _golden(lambda tt: wls(tt, inl), tau - grid_step_s, tau + grid_step_s, tol_s)
         r0, r2_now, psi = prob.fitted(tau, inl)
         inl = r2_now / k2 < CHI2_2_999
+    sig_curv, n_in, rms, kpost2, psi = _curvature_sigma(prob, tau, inl, fit_mounting)
+    return ClockOffsetEstimate(tau, sigma_inflation * sig_curv, sig_curv, grid, cost, n_p, n_in, rms,
+                               math.sqrt(kpost2), psi)
+
+
+def _usable_vectors(vec_t_ns, target, e_c, P_c):
+    """The vectors with a finite direction (and covariance), normalised: (t_ns, e, target, P_c)."""
+    vt = np.asarray(vec_t_ns, dtype=np.int64)
+    e = np.asarray(e_c, float)
+    tg = np.asarray(target).astype(str)
+    if e.shape != (vt.size, 3) or tg.shape != (vt.size,):
+        raise ValueError(f"vectors: expected t (K,), target (K,), e_c (K, 3); got {vt.shape}, {tg.shape}, {e.shape}")
+    Pc = None if P_c is None else np.asarray(P_c, float)
+    if Pc is not None and Pc.shape != (vt.size, 3, 3):
+        raise ValueError(f"P_c: expected ({vt.size}, 3, 3), got {Pc.shape}")
+    nrm = np.linalg.norm(e, axis=1)
+    good = np.isfinite(nrm) & (nrm > 0)
+    if Pc is not None:
+        good &= np.all(np.isfinite(Pc), axis=(1, 2))
+    vt, e, tg = vt[good], e[good] / nrm[good, None], tg[good]
+    if Pc is not None:
+        Pc = Pc[good]
+    return vt, e, tg, Pc
+
+
+def _curvature_sigma(prob, tau: float, inl, fit_mounting: bool):
+    """Step 4 of the module docstring, linearised about tau with psi re-fitted (the profile
+    derivative): (curvature sigma, inliers, RMS residual, posterior reduced chi-square, psi)."""
     r0, r2_now, psi = prob.fitted(tau, inl)
-    # 4. uncertainty (linearised about tau; psi re-fitted: the profile derivative)
     h = 1e-3
     g = (prob.fitted(tau + h, inl)[0] - prob.fitted(tau - h, inl)[0]) / (2 * h)
     w = inl / prob.sig2
@@ -426,8 +438,7 @@ def estimate_clock_offset(imu_t_ns, w_b, vec_t_ns, target, e_c, R_bc, *, sample:
     kpost2 = float(np.sum(w * np.sum(r0 ** 2, 1)) / max(2 * n_in - 1 - (3 if fit_mounting else 0), 1))
     sig_curv = math.sqrt(kpost2 / info) if info > 0 else math.inf
     rms = float(np.sqrt(np.mean(np.sum(r0[inl] ** 2, 1)))) if n_in else math.nan
-    return ClockOffsetEstimate(tau, sigma_inflation * sig_curv, sig_curv, grid, cost, n_p, n_in, rms,
-                               math.sqrt(kpost2), psi)
+    return sig_curv, n_in, rms, kpost2, psi
 
 
 def estimate_camera_offsets(imu, vectors, R_bc, *, gps=None, q_eb0=None, **kw) -> list:

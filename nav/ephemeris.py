@@ -64,12 +64,11 @@ SUN_NODE_STEP_S = 60.0
 def sun_position_i(utc_ns, *, beyond_table: str = "raise") -> np.ndarray:
     """Apparent geocentric Sun position in GCRS [m], with annual aberration applied.
 
-    ``erfa.epv00`` costs ~33 us per epoch (60 ms for the 1800 frames of a 30 s two-camera video).
-    When there are more than twice as many epochs as :data:`SUN_NODE_STEP_S` nodes over their span,
-    the position is evaluated at the nodes (in TT, so a leap second inside the span is no jump)
-    and interpolated linearly: the error is at most ``|p''| h^2 / 8`` = 5.9e-3 m/s^2 (the Sun's
-    geocentric acceleration) x (60 s)^2 / 8 = 2.7 m, 1.8e-11 rad of direction
-    (tests/test_ephemeris.py)."""
+    ``erfa.epv00`` is costly per epoch (tens of microseconds), so when there are more than twice
+    as many epochs as :data:`SUN_NODE_STEP_S` nodes over their span, the position is evaluated at
+    the nodes (in TT, so a leap second inside the span is no jump) and interpolated linearly: the
+    error is at most ``|p''| h^2 / 8`` = 5.9e-3 m/s^2 (the Sun's geocentric acceleration) x
+    (60 s)^2 / 8 = 2.7 m, 1.8e-11 rad of direction (tests/test_ephemeris.py)."""
     t = as_time_ns(utc_ns, "utc_ns")
     tt = np.asarray(utc_to_tt_ns(t, beyond_table=beyond_table), np.int64)
     flat = tt.reshape(-1)

@@ -27,8 +27,11 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from nav._kernels import skew
 from nav.tuning import Tuning
 
+#: number of leading states (dx, dv, psi) whose transition rows are dense; the others are diagonal
+N_NAV = 9
 IMU_GROUPS = ("accel_bias", "gyro_bias", "accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
 
 
@@ -121,10 +124,6 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
     return StateLayout(tuple(groups), n_cameras, tuple(tuning.targets))
 
 
-def _sk(v):
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def gravity_gradient(x_e) -> np.ndarray:
     """d g_e / d x_e: point-mass gravitation gradient ``GM/r^3 (3 u u^T - I)`` plus the centrifugal
     term ``diag(w^2, w^2, 0)`` (the J2 part changes it by 0.1 %, below what the filter resolves)."""
@@ -150,15 +149,15 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float) -> np.nd
     n = layout.n
     F = np.zeros((n, n))
     ix, iv, ip = layout["dx"], layout["dv"], layout["psi"]
-    W = _sk(OMEGA_IE_E)
+    W = skew(OMEGA_IE_E)
     F[ix, iv] = np.eye(3)
     F[iv, ix] = gravity_gradient(x_e)
     F[iv, iv] = -2.0 * W
-    F[iv, ip] = -_sk(R_eb @ f_b)
+    F[iv, ip] = -skew(np.asarray(R_eb @ f_b, float))
     F[ip, ip] = -W
     sens = {"accel_bias": (iv, np.eye(3)), "accel_scale": (iv, np.diag(f_b)),
-            "accel_misalignment": (iv, _sk(f_b)), "gyro_bias": (ip, np.eye(3)),
-            "gyro_scale": (ip, np.diag(w_b)), "gyro_misalignment": (ip, _sk(w_b))}
+            "accel_misalignment": (iv, skew(np.asarray(f_b, float))), "gyro_bias": (ip, np.eye(3)),
+            "gyro_scale": (ip, np.diag(w_b)), "gyro_misalignment": (ip, skew(np.asarray(w_b, float)))}
     for name, (row, S) in sens.items():
         if layout.has(name):
             F[row, layout[name]] = -R_eb @ S
@@ -168,11 +167,6 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float) -> np.nd
     return F
 
 
-def nav_rows(layout: StateLayout) -> int:
-    """Number of leading states whose transition differs from identity/diagonal (dx, dv, psi)."""
-    return 9
-
-
 def discrete_transition(layout: StateLayout, F: np.ndarray, dt: float) -> np.ndarray:
     """Phi = exp(F dt) to second order, ``I + F dt + (F dt)^2 / 2``, over the navigation rows; the
     diagonal Gauss-Markov entries use the exact ``exp(-dt/T_c)`` (003 eq. (42) is its first-order
@@ -180,7 +174,7 @@ def discrete_transition(layout: StateLayout, F: np.ndarray, dt: float) -> np.nda
     n = layout.n
     Fd = F * dt
     Phi = np.eye(n)
-    m = nav_rows(layout)
+    m = N_NAV
     Phi[:m] += Fd[:m] + 0.5 * (Fd[:m] @ Fd)
     for g in layout.groups:
         if g.name.startswith("zeta_"):
@@ -212,7 +206,7 @@ class BlockTransition:
 
 
 @nb.njit(cache=True)
-def _nav_transition(x, R, f, w, dt, cols, n, W, GM):
+def nav_transition(x, R, f, w, dt, cols, n, W, GM):
     """Rows 0..8 of Phi = I + F dt + (F dt)^2/2 (see :func:`error_dynamics`); ``cols`` (6,) holds
     the first column of accel_bias, gyro_bias, accel_scale, accel_misalignment, gyro_scale,
     gyro_misalignment (-1: absent)."""
@@ -241,6 +235,7 @@ def _nav_transition(x, R, f, w, dt, cols, n, W, GM):
             continue
         row = 3 if (g == 0 or g == 2 or g == 3) else 6
         v = f if row == 3 else w
+        K = skew(v)
         for i in range(3):
             for j in range(3):
                 if g <= 1:
@@ -251,14 +246,7 @@ def _nav_transition(x, R, f, w, dt, cols, n, W, GM):
                     # -R [v x], column j of [v x]
                     val = 0.0
                     for m in range(3):
-                        skm = 0.0
-                        if m == 0 and j == 1: skm = -v[2]
-                        elif m == 0 and j == 2: skm = v[1]
-                        elif m == 1 and j == 0: skm = v[2]
-                        elif m == 1 and j == 2: skm = -v[0]
-                        elif m == 2 and j == 0: skm = -v[1]
-                        elif m == 2 and j == 1: skm = v[0]
-                        val -= R[i, m] * skm
+                        val -= R[i, m] * K[m, j]
                 F[row + i, c + j] = val
     Fd = F * dt
     A = Fd + 0.5 * (np.ascontiguousarray(Fd[:, :9]) @ Fd)
@@ -268,16 +256,13 @@ def _nav_transition(x, R, f, w, dt, cols, n, W, GM):
 
 
 class TransitionBuilder:
-    """Builds :class:`BlockTransition` for a layout with preallocated index blocks (the fast path of
-    :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
+    """Builds :class:`BlockTransition` for a layout with the compiled :func:`nav_transition` (the
+    filter's form of :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
 
     def __init__(self, layout: StateLayout, tc: float):
-        from nav.earth import OMEGA_IE_E
         self.n = layout.n
         self.layout = layout
         self.tc = tc
-        self.W = _sk(OMEGA_IE_E)
-        self.sens = [(name, layout[name]) for name in IMU_GROUPS if layout.has(name)]
         self.cols = np.array([layout[nm].start if layout.has(nm) else -1 for nm in IMU_GROUPS], dtype=np.int64)
         self.zeta = np.zeros(self.n, bool)
         for g in layout.groups:
@@ -286,38 +271,9 @@ class TransitionBuilder:
 
     def __call__(self, x_e, R_eb, f_b, w_b, dt) -> BlockTransition:
         from nav.earth import GM, OMEGA_E
-        A = _nav_transition(np.asarray(x_e, float), np.ascontiguousarray(R_eb), np.asarray(f_b, float),
+        A = nav_transition(np.asarray(x_e, float), np.ascontiguousarray(R_eb), np.asarray(f_b, float),
                             np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM)
         d = np.ones(self.n)
-        d[self.zeta] = np.exp(-dt / self.tc)
-        return BlockTransition(A, d)
-
-    def reference(self, x_e, R_eb, f_b, w_b, dt) -> BlockTransition:
-        """Plain numpy version of :meth:`__call__` (kept for the tests)."""
-        n = self.n
-        Fn = np.zeros((9, n))
-        Fn[0:3, 3:6] = np.eye(3)
-        Fn[3:6, 0:3] = gravity_gradient(x_e)
-        Fn[3:6, 3:6] = -2.0 * self.W
-        Fn[3:6, 6:9] = -_sk(R_eb @ f_b)
-        Fn[6:9, 6:9] = -self.W
-        for name, sl in self.sens:
-            if name == "accel_bias":
-                Fn[3:6, sl] = -R_eb
-            elif name == "gyro_bias":
-                Fn[6:9, sl] = -R_eb
-            elif name == "accel_scale":
-                Fn[3:6, sl] = -R_eb * f_b[None, :]
-            elif name == "gyro_scale":
-                Fn[6:9, sl] = -R_eb * w_b[None, :]
-            elif name == "accel_misalignment":
-                Fn[3:6, sl] = -R_eb @ _sk(f_b)
-            else:
-                Fn[6:9, sl] = -R_eb @ _sk(w_b)
-        Fd = Fn * dt
-        A = Fd + 0.5 * (Fd[:, :9] @ Fd)
-        A[:, :9] += np.eye(9)
-        d = np.ones(n)
         d[self.zeta] = np.exp(-dt / self.tc)
         return BlockTransition(A, d)
 

@@ -8,8 +8,9 @@ Measurement model for each triad (accelerometer ``f``, gyro ``w``), to first ord
 ``s`` are scale-factor errors, ``m`` a small-angle misalignment of the sensor triad (the sensor
 axes rotated by ``-m`` from b, so ``(I - [m x]) f = f + [f x] m``). The filter's error states
 are the residuals after calibration with the current estimates, so the corrected measurement's
-error is ``delta_f = b_f + diag(f) s_f + [f x] m_f`` (same for the gyro), and its Jacobian with
-respect to the six groups is :func:`sensitivity`.
+error is ``delta_f = b_f + diag(f) s_f + [f x] m_f`` (same for the gyro): its Jacobian with
+respect to the bias, scale and misalignment groups is ``I``, ``diag(f)``, ``[f x]``
+(:func:`nav.error_state.error_dynamics`).
 """
 from __future__ import annotations
 
@@ -17,11 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nav._kernels import skew
 from nav.checks import as_vectors
-
-
-def _sk(v):
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 @dataclass
@@ -42,8 +40,8 @@ class ImuCalibration:
 
         ``A = (I + diag(s) - [m x])^-1``: the exact inverse of the first-order model above.
         """
-        A_f = np.linalg.inv(np.eye(3) + np.diag(self.s_f) - _sk(self.m_f))
-        A_w = np.linalg.inv(np.eye(3) + np.diag(self.s_w) - _sk(self.m_w))
+        A_f = np.linalg.inv(np.eye(3) + np.diag(self.s_f) - skew(np.asarray(self.m_f, float)))
+        A_w = np.linalg.inv(np.eye(3) + np.diag(self.s_w) - skew(np.asarray(self.m_w, float)))
         return A_f, self.b_f.copy(), A_w, self.b_w.copy()
 
 
@@ -65,16 +63,3 @@ def corrupt(f_true, w_true, *, b_f=0, b_w=0, s_f=0, m_f=0, s_w=0, m_w=0):
     w = as_vectors(w_true, "w_true")
     b_f, b_w, s_f, m_f, s_w, m_w = (np.broadcast_to(np.asarray(a, float), (3,)) for a in (b_f, b_w, s_f, m_f, s_w, m_w))
     return (f + b_f + f * s_f + np.cross(f, m_f), w + b_w + w * s_w + np.cross(w, m_w))
-
-
-def sensitivity(v) -> dict:
-    """Jacobians of the calibrated-measurement error with respect to the error groups at sample
-    value ``v`` (3,): {"bias": I, "scale": diag(v), "misalignment": [v x]}."""
-    v = np.asarray(v, float)
-    return {"bias": np.eye(3), "scale": np.diag(v), "misalignment": _sk(v)}
-
-
-def feedback(cal: ImuCalibration, group: str, dx: np.ndarray) -> None:
-    """Add the filter's estimate of a residual error group to the calibration (closed loop)."""
-    name = GROUP_TO_FIELD[group]
-    setattr(cal, name, getattr(cal, name) + dx)

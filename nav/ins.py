@@ -30,45 +30,22 @@ import numba as nb
 import numpy as np
 
 from nav import earth
+from nav._kernels import gravity, quat_to_R_into
 from nav.checks import as_vectors
 from nav.imu_errors import ImuCalibration
 from nav.rotation import quat_normalize
 
-_A, _GM, _J2, _W = earth.A, earth.GM, earth.J2, earth.OMEGA_E
-
-
-@nb.njit(cache=True, fastmath=False)
-def _gravity(x0, x1, x2):
-    """J2 gravitation + centrifugal in e; same formula as :func:`nav.earth.gravity_e`."""
-    r2 = x0 * x0 + x1 * x1 + x2 * x2
-    r = math.sqrt(r2)
-    zr2 = x2 * x2 / r2
-    k = 1.5 * _J2 * (_A * _A / r2)
-    fxy = 1.0 + k * (1.0 - 5.0 * zr2)
-    fz = 1.0 + k * (3.0 - 5.0 * zr2)
-    s = -_GM / (r2 * r)
-    w2 = _W * _W
-    return s * fxy * x0 + w2 * x0, s * fxy * x1 + w2 * x1, s * fz * x2
-
-
-@nb.njit(cache=True)
-def _rot(q, R):
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    n = x * x + y * y + z * z + w * w
-    s = 2.0 / n
-    R[0, 0] = 1 - s * (y * y + z * z); R[0, 1] = s * (x * y - z * w); R[0, 2] = s * (x * z + y * w)
-    R[1, 0] = s * (x * y + z * w); R[1, 1] = 1 - s * (x * x + z * z); R[1, 2] = s * (y * z - x * w)
-    R[2, 0] = s * (x * z - y * w); R[2, 1] = s * (y * z + x * w); R[2, 2] = 1 - s * (x * x + y * y)
+_W = earth.OMEGA_E
 
 
 @nb.njit(cache=True)
 def _deriv(x, v, q, fb, wb, R, dx, dv, dq):
-    _rot(q, R)
+    quat_to_R_into(q, R, True)
     # omega_eb_b = omega_ib_b - R^T omega_ie (omega_ie = [0, 0, W])
     w0 = wb[0] - R[2, 0] * _W
     w1 = wb[1] - R[2, 1] * _W
     w2 = wb[2] - R[2, 2] * _W
-    g0, g1, g2 = _gravity(x[0], x[1], x[2])
+    g0, g1, g2 = gravity(x[0], x[1], x[2])
     for i in range(3):
         dx[i] = v[i]
         dv[i] = R[i, 0] * fb[0] + R[i, 1] * fb[1] + R[i, 2] * fb[2]
@@ -84,25 +61,39 @@ def _deriv(x, v, q, fb, wb, R, dx, dv, dq):
 
 
 @nb.njit(cache=True)
-def _calibrate(raw, A, b, out):
+def _calibrate(raw, c, out):
+    """``A (raw - b)`` with ``c`` (4, 3): rows 0..2 A, row 3 b."""
     for i in range(3):
-        out[i] = A[i, 0] * (raw[0] - b[0]) + A[i, 1] * (raw[1] - b[1]) + A[i, 2] * (raw[2] - b[2])
+        out[i] = c[i, 0] * (raw[0] - c[3, 0]) + c[i, 1] * (raw[1] - c[3, 1]) + c[i, 2] * (raw[2] - c[3, 2])
 
 
 @nb.njit(cache=True)
-def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, average=False):
+def _stage(x, v, q, c, kx, kv, kq, xs, vs, qs):
+    """The state of an RK4 stage, ``(xs, vs, qs) = (x, v, q) + c k``."""
+    for j in range(3):
+        xs[j] = x[j] + c * kx[j]; vs[j] = v[j] + c * kv[j]
+    for j in range(4):
+        qs[j] = q[j] + c * kq[j]
+
+
+@nb.njit(cache=True)
+def ins_kernel(nav, t, fw, i0, i1, cal_m, traj, stats, average=False):
     """Integrate from sample ``i0`` to ``i1`` (inclusive; ``i1 < i0`` runs backwards).
 
-    ``x, v, q`` hold the state at ``t[i0]`` and are updated in place to ``t[i1]``; the state at
-    every sample from i0 to i1 is written into X, V, Q (rows indexed like ``t``). ``stats`` (6,)
+    ``nav`` (10,) holds x_e, v_e, q_eb at ``t[i0]`` and is updated in place to ``t[i1]``; the
+    state at every sample from i0 to i1 is written into the rows of ``traj`` (N, 10) (indexed like
+    ``t``). ``fw`` (N, 2, 3): specific force and angular rate of each sample. ``stats`` (6,)
     receives the mean calibrated specific force and angular rate over the interval (used for the
-    covariance transition). Samples are calibrated with ``A (raw - b)``.
+    covariance transition). Samples are calibrated with ``A (raw - b)``, ``cal_m`` (2, 4, 3) holding
+    A (rows 0..2) and b (row 3) of the accelerometers and the gyros.
 
     ``average=False``: samples are instantaneous values, interpolated linearly within a step.
     ``average=True``: sample k is the mean over (t[k-1], t[k]] (rate output of an integrating IMU,
     or increments divided by the interval) and is held over that step.
     """
     step = 1 if i1 >= i0 else -1
+    x, v, q = nav[0:3], nav[3:6], nav[6:10]
+    cf, cw = cal_m[0], cal_m[1]
     R = np.empty((3, 3))
     fa = np.empty(3); fb_ = np.empty(3); fm = np.empty(3)
     wa = np.empty(3); wb_ = np.empty(3); wm = np.empty(3)
@@ -113,26 +104,24 @@ def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, ave
     xs = np.empty(3); vs = np.empty(3); qs = np.empty(4)
     for j in range(6):
         stats[j] = 0.0
-    for j in range(3):
-        X[i0, j] = x[j]; V[i0, j] = v[j]
-    for j in range(4):
-        Q[i0, j] = q[j]
+    for j in range(10):
+        traj[i0, j] = nav[j]
     i = i0
     nsum = 0
-    _calibrate(f[i0], A_f, b_f, fa)
-    _calibrate(w[i0], A_w, b_w, wa)
+    _calibrate(fw[i0, 0], cf, fa)
+    _calibrate(fw[i0, 1], cw, wa)
     while i != i1:
         k = i + step
         h = t[k] - t[i]
         if average:
             m = k if k > i else i
-            _calibrate(f[m], A_f, b_f, fb_)
-            _calibrate(w[m], A_w, b_w, wb_)
+            _calibrate(fw[m, 0], cf, fb_)
+            _calibrate(fw[m, 1], cw, wb_)
             for j in range(3):
                 fa[j] = fb_[j]; wa[j] = wb_[j]
         else:
-            _calibrate(f[k], A_f, b_f, fb_)
-            _calibrate(w[k], A_w, b_w, wb_)
+            _calibrate(fw[k, 0], cf, fb_)
+            _calibrate(fw[k, 1], cw, wb_)
         for j in range(3):
             fm[j] = 0.5 * (fa[j] + fb_[j])
             wm[j] = 0.5 * (wa[j] + wb_[j])
@@ -140,20 +129,11 @@ def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, ave
             stats[3 + j] += wm[j]
         nsum += 1
         _deriv(x, v, q, fa, wa, R, k1x, k1v, k1q)
-        for j in range(3):
-            xs[j] = x[j] + 0.5 * h * k1x[j]; vs[j] = v[j] + 0.5 * h * k1v[j]
-        for j in range(4):
-            qs[j] = q[j] + 0.5 * h * k1q[j]
+        _stage(x, v, q, 0.5 * h, k1x, k1v, k1q, xs, vs, qs)
         _deriv(xs, vs, qs, fm, wm, R, k2x, k2v, k2q)
-        for j in range(3):
-            xs[j] = x[j] + 0.5 * h * k2x[j]; vs[j] = v[j] + 0.5 * h * k2v[j]
-        for j in range(4):
-            qs[j] = q[j] + 0.5 * h * k2q[j]
+        _stage(x, v, q, 0.5 * h, k2x, k2v, k2q, xs, vs, qs)
         _deriv(xs, vs, qs, fm, wm, R, k3x, k3v, k3q)
-        for j in range(3):
-            xs[j] = x[j] + h * k3x[j]; vs[j] = v[j] + h * k3v[j]
-        for j in range(4):
-            qs[j] = q[j] + h * k3q[j]
+        _stage(x, v, q, h, k3x, k3v, k3q, xs, vs, qs)
         _deriv(xs, vs, qs, fb_, wb_, R, k4x, k4v, k4q)
         for j in range(3):
             x[j] += h / 6.0 * (k1x[j] + 2.0 * k2x[j] + 2.0 * k3x[j] + k4x[j])
@@ -166,10 +146,9 @@ def ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, stats, ave
         for j in range(4):
             q[j] /= nq
         for j in range(3):
-            X[k, j] = x[j]; V[k, j] = v[j]
             fa[j] = fb_[j]; wa[j] = wb_[j]
-        for j in range(4):
-            Q[k, j] = q[j]
+        for j in range(10):
+            traj[k, j] = nav[j]
         i = k
     if nsum > 0:
         for j in range(6):
@@ -221,17 +200,19 @@ def propagate(x0, v0, q0, t_s, f_b, w_b, *, backward: bool = False, calibration:
     if t.size > 1 and not np.all(np.diff(t) > 0):
         raise ValueError("t_s: sample times must be strictly increasing")
     cal = calibration or ImuCalibration()
-    A_f, b_f, A_w, b_w = cal.matrices()
-    x = as_vectors(x0, "x0").astype(float).copy()
-    v = as_vectors(v0, "v0").astype(float).copy()
-    q = quat_normalize(q0).copy()
+    cal_m = np.empty((2, 4, 3))
+    cal_m[0, :3], cal_m[0, 3], cal_m[1, :3], cal_m[1, 3] = cal.matrices()
+    nav = np.concatenate([as_vectors(x0, "x0").astype(float), as_vectors(v0, "v0").astype(float), quat_normalize(q0)])
     N = t.size
-    X = np.empty((N, 3)); V = np.empty((N, 3)); Q = np.empty((N, 4))
+    fw = np.empty((N, 2, 3))
+    fw[:, 0], fw[:, 1] = f, w
+    traj = np.empty((N, 10))
     i0, i1 = (N - 1, 0) if backward else (0, N - 1)
     if sample not in ("point", "average"):
         raise ValueError(f"sample: expected 'point' or 'average', got {sample!r}")
-    ins_kernel(x, v, q, t, f, w, i0, i1, A_f, b_f, A_w, b_w, X, V, Q, np.empty(6), sample == "average")
-    return X, V, Q
+    ins_kernel(nav, t, fw, i0, i1, cal_m, traj, np.empty(6), sample == "average")
+    return (np.ascontiguousarray(traj[:, 0:3]), np.ascontiguousarray(traj[:, 3:6]),
+            np.ascontiguousarray(traj[:, 6:10]))
 
 
 def stationary_imu(x_e, q_eb):
@@ -240,65 +221,3 @@ def stationary_imu(x_e, q_eb):
     R = quat_to_matrix(q_eb)
     g = earth.gravity_e(x_e)
     return -R.T @ g, R.T @ earth.OMEGA_IE_E
-
-
-# --- small allocation-light rotation helpers for the filter loop (tested against scipy) ---
-
-@nb.njit(cache=True)
-def quat_to_R(q):
-    """Scalar-last quaternion -> rotation matrix (normalising)."""
-    R = np.empty((3, 3))
-    _rot(q, R)
-    return R
-
-
-@nb.njit(cache=True)
-def R_to_quat(R):
-    """Rotation matrix -> scalar-last unit quaternion with w >= 0 (Shepperd)."""
-    q = np.empty(4)
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr >= R[0, 0] and tr >= R[1, 1] and tr >= R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q[3] = 0.25 * s
-        q[0] = (R[2, 1] - R[1, 2]) / s
-        q[1] = (R[0, 2] - R[2, 0]) / s
-        q[2] = (R[1, 0] - R[0, 1]) / s
-    elif R[0, 0] >= R[1, 1] and R[0, 0] >= R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q[0] = 0.25 * s
-        q[1] = (R[0, 1] + R[1, 0]) / s
-        q[2] = (R[0, 2] + R[2, 0]) / s
-        q[3] = (R[2, 1] - R[1, 2]) / s
-    elif R[1, 1] >= R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q[1] = 0.25 * s
-        q[0] = (R[0, 1] + R[1, 0]) / s
-        q[2] = (R[1, 2] + R[2, 1]) / s
-        q[3] = (R[0, 2] - R[2, 0]) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q[2] = 0.25 * s
-        q[0] = (R[0, 2] + R[2, 0]) / s
-        q[1] = (R[1, 2] + R[2, 1]) / s
-        q[3] = (R[1, 0] - R[0, 1]) / s
-    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    sg = 1.0 if q[3] >= 0 else -1.0
-    for i in range(4):
-        q[i] *= sg / n
-    return q
-
-
-@nb.njit(cache=True)
-def rotvec_to_R(phi):
-    """Rotation vector -> matrix, exp([phi x]) (Rodrigues with series near zero)."""
-    a = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    if a < 1e-4:
-        s = 1.0 - a * a / 6.0
-        c = 0.5 - a * a / 24.0
-    else:
-        s = math.sin(a) / a
-        c = (1.0 - math.cos(a)) / (a * a)
-    K = np.zeros((3, 3))
-    K[0, 1] = -phi[2]; K[0, 2] = phi[1]; K[1, 0] = phi[2]
-    K[1, 2] = -phi[0]; K[2, 0] = -phi[1]; K[2, 1] = phi[0]
-    return np.eye(3) + s * K + c * (K @ K)

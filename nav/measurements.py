@@ -32,11 +32,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from nav._kernels import skew
 from nav.rotation import rotvec_to_matrix, tangent_bases, tangent_basis
-
-
-def _sk(v):
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def target_direction_e(target: str, x_e, target_pos_e=None) -> np.ndarray:
@@ -64,8 +61,8 @@ def vector_jacobians(target: str, x_e, u_e, R_eb, R_bc, target_pos_e=None):
     """
     R_ce = R_bc.T @ R_eb.T
     e_c = R_ce @ u_e
-    H_psi = R_ce @ _sk(u_e)
-    H_psic = _sk(e_c) @ R_bc.T
+    H_psi = R_ce @ skew(np.asarray(u_e, float))
+    H_psic = skew(e_c) @ R_bc.T
     x = np.asarray(x_e, float)
     if target == "hor":
         dist = np.linalg.norm(x)
@@ -101,17 +98,6 @@ def vector_rate(target: str, x_e, v_e, u_e, R_eb, R_bc, w_eb_b, target_pos_e=Non
     return -np.cross(w_c, e_c) + R_ce @ du
 
 
-def innovation(measured, predicted) -> np.ndarray:
-    """003 eq. (40): measured minus predicted."""
-    return np.asarray(measured, float) - np.asarray(predicted, float)
-
-
-def innovation_covariance(H, P, R) -> np.ndarray:
-    """003 eq. (49): ``S = H P H^T + R`` (symmetrised)."""
-    S = H @ P @ H.T + R
-    return 0.5 * (S + S.T)
-
-
 def correct_mounting(R_bc, psi_c) -> np.ndarray:
     """003 eq. (50): ``(I + [psi_c x]) R_bc`` in its exact, orthonormal form ``exp([psi_c x]) R_bc``."""
     return rotvec_to_matrix(np.asarray(psi_c, float)) @ R_bc
@@ -140,14 +126,14 @@ def vector_covariance_problem(P_c, e_c) -> str | None:
 def gps_position(x_e, R_eb, lever_b):
     """Predicted antenna position and its Jacobians (H_dx, H_psi)."""
     r = R_eb @ np.asarray(lever_b, float)
-    return np.asarray(x_e, float) + r, np.eye(3), -_sk(r)
+    return np.asarray(x_e, float) + r, np.eye(3), -skew(r)
 
 
 def gps_velocity(v_e, R_eb, w_eb_b, lever_b):
     """Predicted antenna velocity and its Jacobians (H_dv, H_psi); the gyro-error dependence of
     the lever-arm term (|l| * gyro error, micrometres per second) is neglected."""
-    r = R_eb @ (_sk(np.asarray(w_eb_b, float)) @ np.asarray(lever_b, float))
-    return np.asarray(v_e, float) + r, np.eye(3), -_sk(r)
+    r = R_eb @ (skew(np.asarray(w_eb_b, float)) @ np.asarray(lever_b, float))
+    return np.asarray(v_e, float) + r, np.eye(3), -skew(r)
 
 
 def vector_covariance_problems(P_c, e_c) -> np.ndarray:

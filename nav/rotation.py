@@ -7,8 +7,6 @@ allocation-light forms used by the filter; everything is vectorised over leading
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from nav.checks import as_finite, as_matrices, as_vectors, unit
@@ -82,12 +80,6 @@ def quat_multiply(p, q) -> np.ndarray:
     return np.concatenate([v, w], axis=-1)
 
 
-def quat_conjugate(q) -> np.ndarray:
-    """Inverse of a unit quaternion."""
-    q = as_vectors(q, "q", 4)
-    return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
-
-
 def rotvec_to_quat(phi) -> np.ndarray:
     """Rotation vector (axis * angle) -> unit quaternion; exact, with a series near zero."""
     phi = as_vectors(phi, "phi")
@@ -123,27 +115,15 @@ def small_angle_update(R, psi) -> np.ndarray:
     return rotvec_to_matrix(psi) @ as_matrices(R, "R")
 
 
-def orthonormalize(R) -> np.ndarray:
-    """Nearest rotation matrix (polar decomposition by SVD); removes accumulated round-off."""
-    U, _, Vt = np.linalg.svd(as_matrices(R, "R"))
-    D = np.ones(U.shape[:-1])
-    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
-    return (U * D[..., None, :]) @ Vt
-
-
 def tangent_basis(e) -> np.ndarray:
     """(3, 2) orthonormal basis ``[t1, t2]`` of the plane perpendicular to ``e`` (normalised first):
     ``t1 = e x a / |e x a|`` with ``a`` the x axis (the y axis when e is within 26 deg of x),
-    ``t2 = e x t1``. Scalar arithmetic: it is called per measurement and per fit."""
-    e0, e1, e2 = (float(v) for v in np.asarray(e, dtype=float).reshape(3))
-    n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-    if not n > 0.0:
+    ``t2 = e x t1`` (:func:`nav._kernels.tangent_basis`; it is called per measurement and per fit)."""
+    from nav._kernels import tangent_basis as kernel   # numba: imported when first needed
+    e = np.asarray(e, dtype=float).reshape(3)
+    if not float(np.dot(e, e)) > 0.0:
         raise ValueError("e: zero-length or non-finite vector has no tangent plane")
-    e0, e1, e2 = e0 / n, e1 / n, e2 / n
-    t = (0.0, e2, -e1) if abs(e0) < 0.9 else (-e2, 0.0, e0)   # e x x_hat, or e x y_hat
-    tn = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-    a0, a1, a2 = t[0] / tn, t[1] / tn, t[2] / tn
-    return np.array([[a0, e1 * a2 - e2 * a1], [a1, e2 * a0 - e0 * a2], [a2, e0 * a1 - e1 * a0]])
+    return kernel(e)
 
 
 def tangent_bases(e) -> np.ndarray:

@@ -50,11 +50,6 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
 
 
-def propagate(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
-    """``Phi P Phi^T + Qd``, symmetrised."""
-    return symmetrize(Phi @ P @ Phi.T + Qd)
-
-
 @nb.njit(cache=True)
 def _cholesky(S, L):
     """Lower Cholesky factor of the small SPD ``S`` into ``L``; False if a pivot is not > 0
@@ -90,32 +85,10 @@ def _forward(L, b, y):
 
 
 @nb.njit(cache=True)
-def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
-    """Gate and apply the Schmidt-Kalman update of a stack of measurement blocks, in place.
-
-    Parameters
-    ----------
-    P : (n, n) prior covariance, overwritten with the posterior when an update is applied.
-    H : (m, n) stacked Jacobians; R : (m, m) noise (block diagonal over the blocks);
-    s : (m,) stacked innovations; est : (n,) bool, False for considered states.
-    offs : (nb + 1,) int64 row offsets of the blocks; gates : (nb,) NIS thresholds (<= 0: no gate).
-    S : (m, m) out, ``H P H^T + R`` (symmetrised; its diagonal blocks are each block's S).
-    nis : (nb,) out, each block's NIS ``s_b^T S_bb^-1 s_b`` with the prior P.
-    code : (nb,) out, OK, GATED, NOT_PD (S_bb not positive definite) or NONFINITE.
-    dx : (n,) out, the correction ``K s`` (zero in considered rows and when nothing is applied).
-
-    Returns
-    -------
-    int
-        OK if the accepted blocks were applied (P updated), NOT_PD if the batch of the accepted
-        blocks could not be (P unchanged), GATED if no block was accepted.
-    """
-    n = P.shape[0]
-    m = H.shape[0]
+def _bad_blocks(H, R, s, offs):
+    """Per block: a non-finite row of H, s or R (such blocks are rejected on their own)."""
+    n = H.shape[1]
     nblk = offs.size - 1
-    for i in range(n):
-        dx[i] = 0.0
-    # blocks with a non-finite row of H, s or R are rejected on their own
     bad = np.zeros(nblk, np.bool_)
     for b in range(nblk):
         for r in range(offs[b], offs[b + 1]):
@@ -127,7 +100,15 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
             for c in range(offs[b], offs[b + 1]):
                 if not np.isfinite(R[r, c]):
                     bad[b] = True
-    # columns where H is non-zero (the only ones that enter P H^T and H P H^T)
+    return bad
+
+
+@nb.njit(cache=True)
+def _innovation_covariance(P, H, R, S):
+    """``P H^T`` (n, m), returned, and ``S = H P H^T + R`` (symmetrised) into ``S``, over the
+    columns where H is non-zero (the only ones that enter either product)."""
+    n = P.shape[0]
+    m = H.shape[0]
     cols = np.empty(n, np.int64)
     nc = 0
     for j in range(n):
@@ -136,7 +117,6 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
                 cols[nc] = j
                 nc += 1
                 break
-    # PHt = P H^T (n, m) over the non-zero columns of H
     PHt = np.zeros((n, m))
     for i in range(n):
         for r in range(m):
@@ -157,8 +137,15 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
             v = 0.5 * (S[r, c] + S[c, r])
             S[r, c] = v
             S[c, r] = v
-    # per-block gate with the prior
-    acc = np.zeros(m, np.int64)
+    return PHt
+
+
+@nb.njit(cache=True)
+def _gate_blocks(S, s, offs, gates, bad, nis, code):
+    """Each block's NIS with the prior and its code (module docstring of :func:`update_kernel`);
+    returns the rows of the accepted blocks and their count."""
+    nblk = offs.size - 1
+    acc = np.zeros(s.size, np.int64)
     ma = 0
     for b in range(nblk):
         o0, o1 = offs[b], offs[b + 1]
@@ -185,18 +172,14 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
         for r in range(o0, o1):
             acc[ma] = r
             ma += 1
-    if ma == 0:
-        return GATED
-    # the accepted blocks together: S_a is the sub-matrix of S (R is block diagonal)
-    Sa = np.empty((ma, ma))
-    for r in range(ma):
-        for c in range(ma):
-            Sa[r, c] = S[acc[r], acc[c]]
-    La = np.zeros((ma, ma))
-    if not _cholesky(Sa, La):
-        return NOT_PD
-    # K^T = S_a^-1 (P H_a^T)^T via the Cholesky factor: L Z = PHt_a^T, L^T K^T = Z; considered
-    # rows of K (columns of K^T) are zero
+    return acc, ma
+
+
+@nb.njit(cache=True)
+def _gain(PHt, La, acc, ma, est):
+    """``K^T`` (ma, n) = ``S_a^-1 (P H_a^T)^T`` via the Cholesky factor ``La`` of S_a: L Z = PHt_a^T,
+    L^T K^T = Z; the considered rows of K (columns of K^T) are zero."""
+    n = PHt.shape[0]
     Kt = np.zeros((ma, n))
     z = np.empty(ma)
     col = np.empty(ma)
@@ -211,16 +194,16 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
             for p in range(r + 1, ma):
                 a -= La[p, r] * Kt[p, i]
             Kt[r, i] = a / La[r, r]
-    sa = np.empty(ma)
-    for r in range(ma):
-        sa[r] = s[acc[r]]
-    for i in range(n):
-        a = 0.0
-        for r in range(ma):
-            a += Kt[r, i] * sa[r]
-        dx[i] = a
-    # KS = K S_a (n, ma), zero in considered rows
-    KSt = np.zeros((ma, n))
+    return Kt
+
+
+@nb.njit(cache=True)
+def _joseph(P, PHt, Kt, Sa, acc, est):
+    """In place ``P+ = P - K H P - P H^T K^T + K S K^T`` with ``K H P = K PHt_a^T``, symmetrised;
+    only the upper triangle is computed and mirrored."""
+    n = P.shape[0]
+    ma = Kt.shape[0]
+    KSt = np.zeros((ma, n))   # (K S_a)^T, zero in considered rows of K
     for i in range(n):
         if not est[i]:
             continue
@@ -229,13 +212,10 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
             for r in range(ma):
                 a += Kt[r, i] * Sa[r, c]
             KSt[c, i] = a
-    # P+ = P - K H P - P H^T K^T + K S K^T, with K H P = K PHt_a^T; only the upper triangle is
-    # computed and mirrored (the symmetrised result)
     for i in range(n):
         ei = est[i]
         for j in range(i, n):
-            ej = est[j]
-            if not (ei or ej):
+            if not (ei or est[j]):
                 # considered x considered: the K rows are zero, the block is only symmetrised
                 v = 0.5 * (P[i, j] + P[j, i])
                 P[i, j] = v
@@ -245,10 +225,8 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
             khp_ji = 0.0
             ksk = 0.0
             for r in range(ma):
-                pa_j = PHt[j, acc[r]]
-                pa_i = PHt[i, acc[r]]
-                khp_ij += Kt[r, i] * pa_j
-                khp_ji += Kt[r, j] * pa_i
+                khp_ij += Kt[r, i] * PHt[j, acc[r]]
+                khp_ji += Kt[r, j] * PHt[i, acc[r]]
                 ksk += KSt[r, i] * Kt[r, j]
             # (Pn + Pn^T)/2 with Pn = P - KHP - KHP^T + KSK; KSK is symmetric in exact arithmetic
             ksk_t = 0.0
@@ -259,6 +237,52 @@ def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
             v = 0.5 * (pij + pji)
             P[i, j] = v
             P[j, i] = v
+
+
+@nb.njit(cache=True)
+def update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx):
+    """Gate and apply the Schmidt-Kalman update of a stack of measurement blocks, in place.
+
+    Parameters
+    ----------
+    P : (n, n) prior covariance, overwritten with the posterior when an update is applied.
+    H : (m, n) stacked Jacobians; R : (m, m) noise (block diagonal over the blocks);
+    s : (m,) stacked innovations; est : (n,) bool, False for considered states.
+    offs : (nb + 1,) int64 row offsets of the blocks; gates : (nb,) NIS thresholds (<= 0: no gate).
+    S : (m, m) out, ``H P H^T + R`` (symmetrised; its diagonal blocks are each block's S).
+    nis : (nb,) out, each block's NIS ``s_b^T S_bb^-1 s_b`` with the prior P.
+    code : (nb,) out, OK, GATED, NOT_PD (S_bb not positive definite) or NONFINITE.
+    dx : (n,) out, the correction ``K s`` (zero in considered rows and when nothing is applied).
+
+    Returns
+    -------
+    int
+        OK if the accepted blocks were applied (P updated), NOT_PD if the batch of the accepted
+        blocks could not be (P unchanged), GATED if no block was accepted.
+    """
+    n = P.shape[0]
+    for i in range(n):
+        dx[i] = 0.0
+    bad = _bad_blocks(H, R, s, offs)
+    PHt = _innovation_covariance(P, H, R, S)
+    acc, ma = _gate_blocks(S, s, offs, gates, bad, nis, code)
+    if ma == 0:
+        return GATED
+    # the accepted blocks together: S_a is the sub-matrix of S (R is block diagonal)
+    Sa = np.empty((ma, ma))
+    for r in range(ma):
+        for c in range(ma):
+            Sa[r, c] = S[acc[r], acc[c]]
+    La = np.zeros((ma, ma))
+    if not _cholesky(Sa, La):
+        return NOT_PD
+    Kt = _gain(PHt, La, acc, ma, est)
+    for i in range(n):
+        a = 0.0
+        for r in range(ma):
+            a += Kt[r, i] * s[acc[r]]
+        dx[i] = a
+    _joseph(P, PHt, Kt, Sa, acc, est)
     return OK
 
 

@@ -202,7 +202,7 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Ps, k_start):
     return -1
 
 
-def rts_smooth(res: NavResult, *, keep_full: bool = False) -> SmoothResult:
+def rts_smooth(res: NavResult) -> SmoothResult:
     """Smooth a forward run made with ``store_for_smoother=True`` (see module docstring)."""
     st = res.store
     if st is None:

@@ -189,6 +189,3 @@ def format_utc(t_ns: int, digits: int = 3) -> str:
     return out + "Z"
 
 
-def mission_time_s(t_ns, liftoff_ns: int) -> np.ndarray:
-    """Mission time T+ in float seconds since lift-off (for plots and reports)."""
-    return (as_time_ns(t_ns, "t_ns") - int(liftoff_ns)).astype(np.float64) / 1e9

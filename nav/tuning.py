@@ -1,12 +1,22 @@
-"""Navigation filter tuning: dataclasses and parsing from a dict or a TOML string (no file I/O).
+"""Navigation filter tuning: the :class:`Tuning` dataclass and parsing of overrides from a dict or
+a TOML string (no file I/O).
 
-The default values are 003 table 3 (CONVENTIONS.md "The reference flight"); the TOML file that
-holds them lives in ``scenarios/library/tuning/table3.toml`` and is read by
-``scenarios/config/tuning.py``. Every error group is ``"E"`` (estimated), ``"C"`` (considered only,
-Schmidt-Kalman, 003 §6.1 and ref. [14]) or ``"off"`` (not modelled).
+:class:`Tuning` holds every default: 003 table 3 (CONVENTIONS.md "The reference flight"). A
+tuning file holds overrides only, in tables per part of the filter; a key left out keeps the
+default, an unknown table or key is an error naming it::
 
-Units in the TOML follow 003 table 3 and end in the unit (``_mg``, ``_ppm``, ``_mrad``, ``_deg_h``,
-``_deg``); the dataclasses hold SI values (m/s^2, rad, rad/s, dimensionless).
+    [imu]       accel_white_noise_mg_rthz, accel_white_noise_extra_mg_rthz,
+                gyro_white_noise_deg_rth, gyro_white_noise_extra_deg_rth,
+                gyro_range_deg_s, accel_range_g, max_gap_s
+    [states.<group>]  mode = "E" | "C" | "off", sigma_<unit>  (groups and units: ``_GROUPS``)
+    [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg
+    [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
+    [filter]    max_cov_interval_s, gate_probability
+
+Every error group is ``"E"`` (estimated), ``"C"`` (considered only, Schmidt-Kalman, 003 §6.1 and
+ref. [14]) or ``"off"`` (not modelled). Units in the TOML follow 003 table 3 and end in the unit
+(``_mg``, ``_ppm``, ``_mrad``, ``_deg_h``, ``_deg``); the dataclasses hold SI values (m/s^2, rad,
+rad/s, dimensionless).
 """
 from __future__ import annotations
 
@@ -16,6 +26,18 @@ from dataclasses import dataclass, replace
 
 G0 = 9.80665  #: standard gravity [m/s^2], converts mg
 MODES = ("E", "C", "off")
+#: the table 3 white noise of the IMU and its bracketed tuning extra, [mg/sqrt(Hz)], [deg/sqrt(h)]
+#: (the defaults of :attr:`Tuning.accel_white`, :attr:`Tuning.gyro_white`: ``_white_noise``)
+IMU_WHITE_NOISE = {"accel_white_noise_mg_rthz": 0.05, "accel_white_noise_extra_mg_rthz": 2.5,
+                   "gyro_white_noise_deg_rth": 0.05, "gyro_white_noise_extra_deg_rth": 2.5}
+
+
+
+def _white_noise(v: dict) -> tuple:
+    """(accel_white, gyro_white) from the table 3 value and the tuning extra added in quadrature:
+    mg/sqrt(Hz) -> m/s^2/sqrt(Hz); deg/sqrt(h) -> rad/s/sqrt(Hz) = rad/sqrt(s)."""
+    return (math.hypot(v["accel_white_noise_mg_rthz"], v["accel_white_noise_extra_mg_rthz"]) * 1e-3 * G0,
+            math.radians(math.hypot(v["gyro_white_noise_deg_rth"], v["gyro_white_noise_extra_deg_rth"])) / 60.0)
 
 
 @dataclass(frozen=True)
@@ -45,7 +67,7 @@ class Tuning:
     accel_bias ... camera_misalignment : StateGroupTuning
         Error groups of 003 eq. (46), generalised (scale factor and misalignment of the IMU).
     camera_clock_offset : StateGroupTuning
-        Time offset of each camera's clock against the IMU time base [s] (issue 9; 003 §7.3), one
+        Time offset of each camera's clock against the IMU time base [s] (003 §7.3), one
         constant state per camera (:mod:`nav.clock_offset` gives the initial value and sigma).
         Off by default (not in table 3); TOML ``[states.camera_clock_offset]`` with ``sigma_ms``.
     vector_white : float
@@ -71,8 +93,8 @@ class Tuning:
     max_imu_gap_s : float
         IMU time step above which a gap is counted (the INS still integrates across it).
     """
-    accel_white: float = math.hypot(0.05, 2.5) * 1e-3 * G0
-    gyro_white: float = math.radians(math.hypot(0.05, 2.5)) / 60.0
+    accel_white: float = _white_noise(IMU_WHITE_NOISE)[0]
+    gyro_white: float = _white_noise(IMU_WHITE_NOISE)[1]
     accel_bias: StateGroupTuning = StateGroupTuning("E", 2e-3 * G0)
     accel_scale: StateGroupTuning = StateGroupTuning("C", 300e-6)
     accel_misalignment: StateGroupTuning = StateGroupTuning("C", 2e-3)
@@ -139,10 +161,68 @@ _GROUPS = {  # key: (unit key, factor to SI)
 }
 
 
-def tuning_from_dict(d: dict) -> Tuning:
-    """Build a :class:`Tuning` from a dict shaped like ``table3.toml`` (missing keys = table 3).
+#: TOML key -> (Tuning field, factor to SI) of the scalar entries, per table; values must be
+#: finite and non-negative, and those in _NONZERO positive
+_SCALARS = {
+    "imu": {"gyro_range_deg_s": ("gyro_range", math.radians(1.0)), "accel_range_g": ("accel_range", G0),
+            "max_gap_s": ("max_imu_gap_s", 1.0)},
+    "vectors": {"white_noise": ("vector_white", 1.0), "correlation_time_s": ("correlation_time_s", 1.0),
+                "gm_default_sigma_deg": ("gm_default_sigma", math.radians(1.0))},
+    "initial": {"attitude_sigma_deg": ("init_att_sigma", math.radians(1.0)),
+                "position_sigma_m": ("init_pos_sigma", 1.0), "velocity_sigma_m_s": ("init_vel_sigma", 1.0)},
+    "filter": {"max_cov_interval_s": ("max_cov_interval_s", 1.0), "gate_probability": ("gate_probability", 1.0)},
+}
+_NONZERO = {"correlation_time_s", "max_cov_interval_s"}
+_OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE), "vectors": {"gm_mode", "targets"}, "initial": set(), "filter": set()}
 
-    Raises ``ValueError`` naming the offending key for unknown sections or bad values.
+
+def _table(d: dict, name: str) -> dict:
+    """Table ``[name]`` of ``d`` (empty if absent); an unknown key raises naming it."""
+    t = d.get(name, {})
+    if not isinstance(t, dict):
+        raise ValueError(f"tuning [{name}]: expected a table")
+    unknown = set(t) - set(_SCALARS[name]) - _OTHER_KEYS[name]
+    if unknown:
+        raise ValueError(f"tuning [{name}]: unknown key {sorted(unknown)[0]!r}; expected one of "
+                         f"{sorted(set(_SCALARS[name]) | _OTHER_KEYS[name])}")
+    return t
+
+
+def _scalar(table: str, key: str, v, scale: float) -> float:
+    x = _positive(v, f"[{table}] {key}")
+    if key in _NONZERO and x == 0:
+        raise ValueError(f"tuning [{table}] {key}: must be > 0")
+    if key == "gate_probability" and not 0 < x < 1:
+        raise ValueError(f"tuning [filter] gate_probability: expected 0 < p < 1, got {x}")
+    return x * scale
+
+
+def _imu_white(imu: dict, kw: dict) -> None:
+    """The white-noise overrides of ``[imu]`` (a component left out keeps its table 3 value)."""
+    if set(imu) & set(IMU_WHITE_NOISE):
+        v = {k: _positive(imu.get(k, d), f"[imu] {k}") for k, d in IMU_WHITE_NOISE.items()}
+        kw["accel_white"], kw["gyro_white"] = _white_noise(v)
+
+
+def _vector_choices(vec: dict, kw: dict) -> None:
+    if "gm_mode" in vec:
+        if vec["gm_mode"] not in MODES:
+            raise ValueError(f"tuning [vectors] gm_mode: expected one of {MODES}, got {vec['gm_mode']!r}")
+        kw["vector_gm_mode"] = vec["gm_mode"]
+    if "targets" in vec:
+        t = tuple(vec["targets"])
+        if not t or any(x not in ("hor", "sun", "moon") for x in t):
+            raise ValueError(f"tuning [vectors] targets: expected a non-empty subset of hor, sun, moon; got {t}")
+        kw["targets"] = t
+
+
+def tuning_from_dict(d: dict) -> Tuning:
+    """Build a :class:`Tuning` from a dict of overrides shaped like a tuning TOML file (tables
+    ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``; units in the key
+    names): every key absent keeps the :class:`Tuning` default (003 table 3).
+
+    Raises ``ValueError`` naming the offending table and key for unknown tables or keys and bad
+    values.
     """
     if not isinstance(d, dict):
         raise ValueError("tuning: expected a table (dict)")
@@ -152,63 +232,19 @@ def tuning_from_dict(d: dict) -> Tuning:
         raise ValueError(f"tuning: unknown sections {sorted(unknown)}; expected {sorted(known)}")
     base = Tuning()
     kw = {}
-    imu = d.get("imu", {})
-    aw = _positive(imu.get("accel_white_noise_mg_rthz", 0.05), "[imu] accel_white_noise_mg_rthz")
-    ax = _positive(imu.get("accel_white_noise_extra_mg_rthz", 2.5), "[imu] accel_white_noise_extra_mg_rthz")
-    gw = _positive(imu.get("gyro_white_noise_deg_rth", 0.05), "[imu] gyro_white_noise_deg_rth")
-    gx = _positive(imu.get("gyro_white_noise_extra_deg_rth", 2.5), "[imu] gyro_white_noise_extra_deg_rth")
-    # mg/sqrt(Hz) -> m/s^2/sqrt(Hz); deg/sqrt(h) -> rad/s/sqrt(Hz) = rad/sqrt(s)
-    kw["accel_white"] = math.hypot(aw, ax) * 1e-3 * G0
-    kw["gyro_white"] = math.radians(math.hypot(gw, gx)) / 60.0
-    if "gyro_range_deg_s" in imu:
-        kw["gyro_range"] = math.radians(_positive(imu["gyro_range_deg_s"], "[imu] gyro_range_deg_s"))
-    if "accel_range_g" in imu:
-        kw["accel_range"] = _positive(imu["accel_range_g"], "[imu] accel_range_g") * G0
-    if "max_gap_s" in imu:
-        kw["max_imu_gap_s"] = _positive(imu["max_gap_s"], "[imu] max_gap_s")
+    for name, keys in _SCALARS.items():
+        table = _table(d, name)
+        for key, (field_, scale) in keys.items():
+            if key in table:
+                kw[field_] = _scalar(name, key, table[key], scale)
+    _imu_white(d.get("imu", {}), kw)
+    _vector_choices(d.get("vectors", {}), kw)
     states = d.get("states", {})
     unknown = set(states) - set(_GROUPS)
     if unknown:
         raise ValueError(f"tuning [states]: unknown groups {sorted(unknown)}; expected {sorted(_GROUPS)}")
     for key, (unit_key, scale) in _GROUPS.items():
         kw[key] = _group(states, key, unit_key, scale, getattr(base, key))
-    vec = d.get("vectors", {})
-    if "white_noise" in vec:
-        kw["vector_white"] = _positive(vec["white_noise"], "[vectors] white_noise")
-    if "gm_mode" in vec:
-        if vec["gm_mode"] not in MODES:
-            raise ValueError(f"tuning [vectors] gm_mode: expected one of {MODES}, got {vec['gm_mode']!r}")
-        kw["vector_gm_mode"] = vec["gm_mode"]
-    if "correlation_time_s" in vec:
-        tc = _positive(vec["correlation_time_s"], "[vectors] correlation_time_s")
-        if tc == 0:
-            raise ValueError("tuning [vectors] correlation_time_s: must be > 0")
-        kw["correlation_time_s"] = tc
-    if "gm_default_sigma_deg" in vec:
-        kw["gm_default_sigma"] = math.radians(_positive(vec["gm_default_sigma_deg"], "[vectors] gm_default_sigma_deg"))
-    if "targets" in vec:
-        t = tuple(vec["targets"])
-        if not t or any(x not in ("hor", "sun", "moon") for x in t):
-            raise ValueError(f"tuning [vectors] targets: expected a non-empty subset of hor, sun, moon; got {t}")
-        kw["targets"] = t
-    ini = d.get("initial", {})
-    if "attitude_sigma_deg" in ini:
-        kw["init_att_sigma"] = math.radians(_positive(ini["attitude_sigma_deg"], "[initial] attitude_sigma_deg"))
-    if "position_sigma_m" in ini:
-        kw["init_pos_sigma"] = _positive(ini["position_sigma_m"], "[initial] position_sigma_m")
-    if "velocity_sigma_m_s" in ini:
-        kw["init_vel_sigma"] = _positive(ini["velocity_sigma_m_s"], "[initial] velocity_sigma_m_s")
-    flt = d.get("filter", {})
-    if "max_cov_interval_s" in flt:
-        v = _positive(flt["max_cov_interval_s"], "[filter] max_cov_interval_s")
-        if v == 0:
-            raise ValueError("tuning [filter] max_cov_interval_s: must be > 0")
-        kw["max_cov_interval_s"] = v
-    if "gate_probability" in flt:
-        p = _positive(flt["gate_probability"], "[filter] gate_probability")
-        if not 0 < p < 1:
-            raise ValueError(f"tuning [filter] gate_probability: expected 0 < p < 1, got {p}")
-        kw["gate_probability"] = p
     return replace(base, **kw)
 
 

@@ -110,6 +110,45 @@ def test_gauss_markov_eqs_41_45():
     assert gm_transition(dt, tc) == pytest.approx(math.exp(-dt / tc))
 
 
+def _transition_reference(layout, tc, x_e, R_eb, f_b, w_b, dt):
+    """Plain numpy version of :class:`nav.error_state.TransitionBuilder` (its reference)."""
+    from nav.earth import OMEGA_IE_E
+    from nav.error_state import IMU_GROUPS, BlockTransition, gravity_gradient
+    from nav.rotation import skew
+    n = layout.n
+    W = skew(OMEGA_IE_E)
+    Fn = np.zeros((9, n))
+    Fn[0:3, 3:6] = np.eye(3)
+    Fn[3:6, 0:3] = gravity_gradient(x_e)
+    Fn[3:6, 3:6] = -2.0 * W
+    Fn[3:6, 6:9] = -skew(R_eb @ f_b)
+    Fn[6:9, 6:9] = -W
+    for name in IMU_GROUPS:
+        if not layout.has(name):
+            continue
+        sl = layout[name]
+        if name == "accel_bias":
+            Fn[3:6, sl] = -R_eb
+        elif name == "gyro_bias":
+            Fn[6:9, sl] = -R_eb
+        elif name == "accel_scale":
+            Fn[3:6, sl] = -R_eb * f_b[None, :]
+        elif name == "gyro_scale":
+            Fn[6:9, sl] = -R_eb * w_b[None, :]
+        elif name == "accel_misalignment":
+            Fn[3:6, sl] = -R_eb @ skew(f_b)
+        else:
+            Fn[6:9, sl] = -R_eb @ skew(w_b)
+    Fd = Fn * dt
+    A = Fd + 0.5 * (Fd[:, :9] @ Fd)
+    A[:, :9] += np.eye(9)
+    d = np.ones(n)
+    for g in layout.groups:
+        if g.name.startswith("zeta_"):
+            d[g.slice] = np.exp(-dt / tc)
+    return BlockTransition(A, d)
+
+
 def test_transition_fast_path_matches_expm():
     """TransitionBuilder (the filter's structured path) equals discrete_transition and is within
     (|F| dt)^3/6 of scipy's expm(F dt) for a 0.05 s block."""
@@ -123,7 +162,7 @@ def test_transition_fast_path_matches_expm():
     tb = TransitionBuilder(lay, 20.0)
     tr = tb(X, R_EB, f, w, dt)
     np.testing.assert_allclose(tr.full(), Phi, atol=1e-15)
-    np.testing.assert_allclose(tb.reference(X, R_EB, f, w, dt).full(), Phi, atol=1e-15)
+    np.testing.assert_allclose(_transition_reference(lay, 20.0, X, R_EB, f, w, dt).full(), Phi, atol=1e-15)
     np.testing.assert_allclose(Phi, expm(F * dt), atol=np.linalg.norm(F * dt, 2) ** 3 / 6 * 2)
     P = rng.normal(size=(lay.n, lay.n)); P = P @ P.T
     np.testing.assert_allclose(tr.apply(P), Phi @ P @ Phi.T, rtol=1e-12, atol=1e-12)
@@ -154,6 +193,69 @@ def test_default_tuning_file_is_table3():
     assert t.camera_misalignment.mode == "E" and t.gyro_bias.mode == "C"
 
 
+_TABLE3_IN_FULL = """
+[imu]
+accel_white_noise_mg_rthz = 0.05
+accel_white_noise_extra_mg_rthz = 2.5
+gyro_white_noise_deg_rth = 0.05
+gyro_white_noise_extra_deg_rth = 2.5
+gyro_range_deg_s = 1000.0
+accel_range_g = 50.0
+max_gap_s = 0.5
+[states.accel_bias]
+mode = "E"
+sigma_mg = 2.0
+[states.accel_scale]
+mode = "C"
+sigma_ppm = 300.0
+[states.accel_misalignment]
+mode = "C"
+sigma_mrad = 2.0
+[states.gyro_bias]
+mode = "C"
+sigma_deg_h = 6.0
+[states.gyro_scale]
+mode = "C"
+sigma_ppm = 2000.0
+[states.gyro_misalignment]
+mode = "C"
+sigma_mrad = 2.0
+[states.camera_misalignment]
+mode = "E"
+sigma_deg = 1.0
+[states.camera_clock_offset]
+mode = "off"
+sigma_ms = 50.0
+[vectors]
+targets = ["hor", "sun"]
+white_noise = 0.005
+gm_mode = "C"
+correlation_time_s = 20.0
+gm_default_sigma_deg = 0.1
+[initial]
+attitude_sigma_deg = 2.0
+position_sigma_m = 10.0
+velocity_sigma_m_s = 0.1
+[filter]
+max_cov_interval_s = 0.1
+gate_probability = 0.99999
+"""
+
+
+def test_tuning_files_hold_overrides():
+    """A key left out keeps the dataclass default; a file listing every table 3 value gives the
+    defaults; an unknown key of any table is an error naming it."""
+    assert tuning_from_toml("") == Tuning()
+    assert tuning_from_toml(_TABLE3_IN_FULL) == Tuning()
+    t = tuning_from_toml("[filter]\nmax_cov_interval_s = 0.01\n[imu]\naccel_white_noise_extra_mg_rthz = 1.0\n")
+    assert t.max_cov_interval_s == 0.01 and t.gyro_white == Tuning().gyro_white
+    assert t.accel_white == pytest.approx(math.hypot(0.05, 1.0) * 1e-3 * 9.80665, rel=1e-15)
+    assert t.with_(max_cov_interval_s=0.1, accel_white=Tuning().accel_white) == Tuning()
+    for table in ("imu", "vectors", "initial", "filter"):
+        with pytest.raises(ValueError, match=rf"\[{table}\]: unknown key 'foo'"):
+            tuning_from_toml(f"[{table}]\nfoo = 1\n")
+
+
 def test_propagate_covariance_equals_block_transition():
     """The in-place propagation kernel (issue 7) equals BlockTransition.apply + q dt + the
     Gauss-Markov blocks, symmetrised (45 states; round-off: 1e-14 of |P|)."""
@@ -179,7 +281,7 @@ def test_gps_rows_kernel_equals_measurement_functions():
     """The navigator's GPS kernel reproduces gps_position / gps_velocity (lever arm 1 m, rate
     0.1 rad/s): innovations and Jacobian blocks to 1e-12."""
     from nav.measurements import gps_position, gps_velocity
-    from nav.navigator import gps_rows_kernel
+    from nav.updates import gps_rows_kernel
     from nav.rotation import rotvec_to_matrix
     rng = np.random.default_rng(5)
     R = rotvec_to_matrix(rng.normal(size=3))

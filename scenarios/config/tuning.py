@@ -1,11 +1,14 @@
-"""Read a navigation-filter tuning TOML file (003 table 3 format) into :class:`nav.tuning.Tuning`."""
+"""Read a navigation-filter tuning TOML file into :class:`nav.tuning.Tuning`.
+
+A tuning file holds overrides of the defaults (003 table 3, :class:`nav.tuning.Tuning`) in
+tables per part of the filter (:mod:`nav.tuning` lists them); errors name the file and the key."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from nav.tuning import Tuning, tuning_from_toml
 
-#: The default tuning: 003 table 3.
+#: The default tuning file: 003 table 3, i.e. no override.
 DEFAULT_TUNING_FILE = Path(__file__).parent.parent / "library" / "tuning" / "table3.toml"
 
 

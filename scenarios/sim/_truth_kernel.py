@@ -14,7 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
-from nav.earth import A, B, E2, EP2, GM, J2, OMEGA_E
+from nav._kernels import gravity, quat_to_R_into
+from nav.earth import A, B, E2, EP2, OMEGA_E
 
 C_THRUST, C_MASS, C_CDA = 0, 1, 2
 C_IXX, C_IYY, C_IZZ, C_IXY, C_IXZ, C_IYZ = 3, 4, 5, 6, 7, 8
@@ -52,22 +53,6 @@ def _interp_row(t, st, sv, out):
 
 
 @njit(cache=True)
-def gravity(x, g):
-    """J2 gravitation plus centrifugal acceleration in e (same formula as nav.earth.gravity_e)."""
-    r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
-    r = math.sqrt(r2)
-    zr2 = x[2] * x[2] / r2
-    k = 1.5 * J2 * (A * A / r2)
-    fxy = 1.0 + k * (1.0 - 5.0 * zr2)
-    fz = 1.0 + k * (3.0 - 5.0 * zr2)
-    s = -GM / (r2 * r)
-    w2 = OMEGA_E * OMEGA_E
-    g[0] = s * fxy * x[0] + w2 * x[0]
-    g[1] = s * fxy * x[1] + w2 * x[1]
-    g[2] = s * fz * x[2]
-
-
-@njit(cache=True)
 def height(x):
     """Geodetic height [m], one Bowring step (error < 1 mm below 1000 km)."""
     p = math.sqrt(x[0] * x[0] + x[1] * x[1])
@@ -76,20 +61,6 @@ def height(x):
     lat = math.atan2(x[2] + EP2 * B * su * su * su, p - E2 * A * cu * cu * cu)
     sl, cl = math.sin(lat), math.cos(lat)
     return p * cl + x[2] * sl - A * math.sqrt(1.0 - E2 * sl * sl)
-
-
-@njit(cache=True)
-def quat_to_R(q, R):
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    R[0, 0] = 1 - 2 * (y * y + z * z)
-    R[0, 1] = 2 * (x * y - z * w)
-    R[0, 2] = 2 * (x * z + y * w)
-    R[1, 0] = 2 * (x * y + z * w)
-    R[1, 1] = 1 - 2 * (x * x + z * z)
-    R[1, 2] = 2 * (y * z - x * w)
-    R[2, 0] = 2 * (x * z - y * w)
-    R[2, 1] = 2 * (y * z + x * w)
-    R[2, 2] = 1 - 2 * (x * x + y * y)
 
 
 @njit(cache=True)
@@ -121,7 +92,7 @@ def deriv(t, y, s, st, sv, rho_step, logrho, rcs_torque, rcs_force, dist, prm, d
     row = np.empty(N_COLS)
     _interp_row(t, st, sv, row)
     R = np.empty((3, 3))
-    quat_to_R(y[6:10], R)
+    quat_to_R_into(y[6:10], R, False)
     x = y[0:3]
     v = y[3:6]
     w = y[10:13]
@@ -151,7 +122,7 @@ def deriv(t, y, s, st, sv, rho_step, logrho, rcs_torque, rcs_force, dist, prm, d
                 for j in range(3):
                     f_b[j] += s[i] * rcs_force[i, j]
     g = np.empty(3)
-    gravity(x, g)
+    g[0], g[1], g[2] = gravity(x[0], x[1], x[2])
     # a_e = R f_b + g - 2 Omega x v ; Omega = (0, 0, OMEGA_E)
     for j in range(3):
         dy[j] = v[j]

@@ -1,0 +1,220 @@
+"""The state of the filter loop between epochs and its two kernels: propagation and feedback.
+
+:class:`FilterState` holds everything the closed-loop Schmidt-Kalman filter (003 §6) carries from
+one epoch to the next: the nominal navigation state (x_e, v_e, q_eb), the error covariance P,
+and the estimates fed back into the nominal models (IMU calibration, camera mountings,
+Gauss-Markov vector errors zeta and their latest P_c, camera clock offsets). The numeric arrays
+are packed so that the kernels take a few arrays instead of one argument per quantity:
+
+* ``nav`` (10,): x_e, v_e, q_eb (``x``, ``v``, ``q`` are views of it);
+* ``fed`` (flat): every fed-back estimate, viewed as ``cal_arr`` (6, 3) (the
+  :class:`nav.imu_errors.ImuCalibration` fields, in ``CAL_FIELDS`` order), ``R_bc`` (cameras, 3, 3),
+  ``zeta`` (groups, 3) and ``clk_hat`` (cameras,);
+* ``fb`` (k, 3) int64: the feedback table, one row ``(operation, offset in fed, first state index)``
+  per estimated group (:func:`feedback_table`);
+* ``cal_m`` (2, 4, 3): the calibration the INS applies, ``A (x - b)``: rows 0..2 of ``[0]`` are
+  A_f and row 3 is b_f, ``[1]`` the same for the gyro;
+* ``model`` (3 + n,): omega_ie, GM, T_c and the white process-noise rate of every state;
+  ``gm_idx`` (6 + groups,) int64: the first column of the six IMU error groups (-1: absent, as
+  :func:`nav.error_state.nav_transition` reads them) and of every zeta group.
+
+A new state group is a group in :func:`nav.error_state.build_layout` (with its tuning entry), its
+columns in the transition if it is not a constant, and a feedback row in :func:`feedback_table`.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from nav import ins
+from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
+from nav.earth import GM, OMEGA_E
+from nav.error_state import IMU_GROUPS, StateLayout, nav_transition, propagate_covariance
+from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
+from nav.rotation import matrix_to_quat, quat_to_matrix
+from nav.tuning import Tuning
+
+CAL_FIELDS = ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w")  #: ImuCalibration fields, rows of ``cal_arr``
+FB_ADD3, FB_ROTATE, FB_ADD1 = 0, 1, 2   #: feedback operations: add 3 values, rotate a 3x3, add 1 value
+_AFFINE = ("accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
+
+
+def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndarray:
+    """(k, 3) int64 rows ``(operation, offset in fed, first state index)`` of every estimated group
+    beyond dx, dv, psi: the IMU error groups add into their calibration field, a camera
+    misalignment rotates its mounting ``R_bc <- exp([psi_c x]) R_bc`` (003 eq. (50)), a zeta group
+    adds into its estimate and a clock offset into the camera's offset (layout of ``fed`` as in
+    the module docstring)."""
+    o_cam, o_zeta = 18, 18 + 9 * n_cam
+    o_clk = o_zeta + 3 * len(zeta_names)
+    rows = []
+    for g in layout.groups:
+        if not g.estimated or g.name in ("dx", "dv", "psi"):
+            continue
+        if g.name in GROUP_TO_FIELD:
+            rows.append((FB_ADD3, 3 * CAL_FIELDS.index(GROUP_TO_FIELD[g.name]), g.slice.start))
+        elif g.name.startswith("psi_c_"):
+            rows.append((FB_ROTATE, o_cam + 9 * int(g.name[6:]), g.slice.start))
+        elif g.name.startswith("zeta_"):
+            rows.append((FB_ADD3, o_zeta + 3 * zeta_names.index(g.name), g.slice.start))
+        elif g.name.startswith("dt_c_"):
+            rows.append((FB_ADD1, o_clk + int(g.name[5:]), g.slice.start))
+    return np.array(rows, dtype=np.int64).reshape(-1, 3)
+
+
+class FilterState:
+    """Nominal state, covariance and fed-back estimates of a run (module docstring).
+
+    Parameters
+    ----------
+    layout : StateLayout
+    tuning : Tuning
+    x_e, v_e, q_eb : initial nominal state.
+    P : (n, n) initial covariance (owned: updated in place).
+    R_bc : (cameras, 3, 3) nominal camera mountings.
+    clk0 : (cameras,) camera clock offsets the stamps were corrected by [s].
+    """
+
+    def __init__(self, layout: StateLayout, tuning: Tuning, x_e, v_e, q_eb, P: np.ndarray, R_bc: np.ndarray,
+                 clk0: np.ndarray):
+        self.layout, self.tuning, self.n = layout, tuning, layout.n
+        self.est_mask = layout.estimated_mask
+        self.P = P
+        self.nav = np.empty(10)
+        self.x, self.v, self.q = self.nav[0:3], self.nav[3:6], self.nav[6:10]
+        self.x[:] = np.asarray(x_e, float)
+        self.v[:] = np.asarray(v_e, float)
+        self.q[:] = matrix_to_quat(quat_to_matrix(q_eb))
+        n_cam = R_bc.shape[0]
+        zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
+        nz = len(zeta_groups)
+        self.fed = np.zeros(18 + 9 * n_cam + 3 * nz + n_cam)
+        self.cal_arr = self.fed[:18].reshape(6, 3)
+        self.R_bc = self.fed[18:18 + 9 * n_cam].reshape(n_cam, 3, 3)
+        self.R_bc[:] = R_bc
+        self.zeta = self.fed[18 + 9 * n_cam:18 + 9 * n_cam + 3 * nz].reshape(nz, 3)
+        self.clk_hat = self.fed[18 + 9 * n_cam + 3 * nz:]
+        self.clk0 = clk0
+        self.calibration = ImuCalibration(**{nm: self.cal_arr[i] for i, nm in enumerate(CAL_FIELDS)})
+        self.zeta_index = {g.name: i for i, g in enumerate(zeta_groups)}
+        self.P_c = np.tile(np.eye(3) * tuning.gm_default_sigma ** 2, (nz, 1, 1))
+        self.last_seen = {}   #: zeta group -> time of its latest sighting [ns]
+        self.fb = feedback_table(layout, n_cam, [g.name for g in zeta_groups])
+        self.affine_estimated = any(g.estimated and g.name in _AFFINE for g in layout.groups)
+        self.cal_m = np.empty((2, 4, 3))
+        self._set_calibration(True)
+        self.model = np.zeros(3 + self.n)
+        self.model[:3] = (OMEGA_E, GM, tuning.correlation_time_s)
+        self.model[3 + layout["dv"].start:3 + layout["dv"].stop] = tuning.accel_white ** 2
+        self.model[3 + layout["psi"].start:3 + layout["psi"].stop] = tuning.gyro_white ** 2
+        self.gm_idx = np.array([layout[nm].start if layout.has(nm) else -1 for nm in IMU_GROUPS]
+                               + [g.slice.start for g in zeta_groups], dtype=np.int64)
+
+    def _set_calibration(self, affine: bool) -> None:
+        """Refresh ``cal_m`` from the calibration estimate (A stays as it is unless ``affine``)."""
+        if affine:
+            A_f, b_f, A_w, b_w = self.calibration.matrices()
+            self.cal_m[0, :3], self.cal_m[1, :3] = A_f, A_w
+        else:
+            b_f, b_w = self.calibration.b_f, self.calibration.b_w
+        self.cal_m[0, 3], self.cal_m[1, 3] = b_f, b_w
+
+    def propagate(self, ts, fw, traj, k: int, k_end: int, avg: bool, A_out, d_out) -> None:
+        """The INS and the covariance from IMU sample k to k_end (:func:`propagate_block`)."""
+        propagate_block(self.nav, self.cal_m, ts, fw, traj, k, k_end, avg, self.model, self.gm_idx, self.P_c,
+                        self.zeta, self.P, A_out, d_out)
+
+    def calibration_changed(self) -> None:
+        """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into
+        the IMU error estimates
+        (only the biases when no scale factor or misalignment is estimated: A stays as it is)."""
+        self._set_calibration(self.affine_estimated)
+
+    def extrapolate(self, f, w, dt_m):
+        """The state ``dt_m`` seconds after the current sample (:func:`extrapolate`)."""
+        return extrapolate(self.nav, f, w, dt_m, OMEGA_E)
+
+
+@nb.njit(cache=True)
+def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c, zeta, P, A_out, d_out):
+    """One covariance block from sample k to k_end: the INS (:func:`nav.ins.ins_kernel`; ``nav``
+    updated in place, the states written into ``traj`` (N, 10) rows x, v, q), the block transition
+    (:func:`nav.error_state.nav_transition` into ``A_out`` (9, n); ``d_out`` (n,) the diagonal of
+    the other rows), the covariance propagation with white and Gauss-Markov process noise
+    (:func:`nav.error_state.propagate_covariance`, P in place; 003 eqs. (41)-(45):
+    ``P_zeta += (1 - phi^2) P_c``) and the decay of the zeta estimates. Packed arguments: module
+    docstring; ``fw`` (N, 2, 3) the measured specific force and rate of each sample."""
+    x, q = nav[0:3], nav[6:10]
+    stats = np.empty(6)
+    ins.ins_kernel(nav, ts, fw, k, k_end, cal_m, traj, stats, avg)
+    dt = ts[k_end] - ts[k]
+    n = P.shape[0]
+    A = nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:6], n, model[0], model[1])
+    phi = np.exp(-dt / model[2])
+    for i in range(9):
+        for j in range(n):
+            A_out[i, j] = A[i, j]
+    for i in range(n):
+        d_out[i] = 1.0
+    zeta_start = gm_idx[6:]
+    for g in range(zeta_start.size):
+        for i in range(3):
+            d_out[zeta_start[g] + i] = phi
+    propagate_covariance(P, A_out, d_out, model[3:] * dt, zeta_start, P_c, 1.0 - phi * phi, np.empty((n, n)))
+    for i in range(zeta.shape[0]):
+        for j in range(3):
+            zeta[i, j] *= phi
+
+
+@nb.njit(cache=True)
+def feedback_kernel(dx, nav, fed, fb):
+    """Closed-loop correction of the nominal state with the estimated errors ``dx``, in place:
+    ``x += dx``, ``v += dv``, ``R_eb <- exp([psi x]) R_eb`` (as a quaternion), then every row of
+    the feedback table ``fb`` (:func:`feedback_table`) on ``fed``. Returns whether the IMU
+    calibration (the first 18 values of ``fed``) changed."""
+    for i in range(3):
+        nav[i] += dx[i]
+        nav[3 + i] += dx[3 + i]
+    qn = R_to_quat(rotvec_to_R(dx[6:9].copy()) @ quat_to_R(nav[6:10]))
+    for i in range(4):
+        nav[6 + i] = qn[i]
+    changed = False
+    for r in range(fb.shape[0]):
+        op, o, st = fb[r, 0], fb[r, 1], fb[r, 2]
+        if op == FB_ADD3:
+            for i in range(3):
+                fed[o + i] += dx[st + i]
+            changed = changed or o < 18
+        elif op == FB_ROTATE:
+            R = np.empty((3, 3))
+            for i in range(3):
+                for j in range(3):
+                    R[i, j] = fed[o + 3 * i + j]
+            Rn = rotvec_to_R(dx[st:st + 3].copy()) @ R
+            for i in range(3):
+                for j in range(3):
+                    fed[o + 3 * i + j] = Rn[i, j]
+        else:
+            fed[o] += dx[st]
+    return changed
+
+
+@nb.njit(cache=True)
+def extrapolate(nav, f, w, dt_m, W):
+    """The state at a measurement ``dt_m`` seconds after the current sample (``nav``: x, v, q
+    there): position to second order, velocity to first order with gravity and Coriolis, attitude
+    with the current rate (f, w: the IMU sample covering the interval, as measured). Returns
+    ``(x_m, v_m, R_m, w_eb)``, ``w_eb`` the body rate against e (for the GPS lever arm)."""
+    x, v = nav[0:3], nav[3:6]
+    R_eb = quat_to_R(nav[6:10])
+    w_eb = w - R_eb[2] * W
+    if dt_m == 0.0:
+        return x.copy(), v.copy(), R_eb, w_eb
+    g0, g1, g2 = gravity(x[0], x[1], x[2])
+    g = np.array([g0, g1, g2])
+    cor = np.array([v[1], -v[0], 0.0])
+    acc = R_eb @ f + g + (2 * W) * cor
+    x_m = x + v * dt_m + (0.5 * acc) * dt_m ** 2
+    v_m = v + acc * dt_m
+    R_m = R_eb @ rotvec_to_R(w_eb * dt_m)
+    return x_m, v_m, R_m, w_eb

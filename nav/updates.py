@@ -1,0 +1,402 @@
+"""Measurement updates of the filter loop: the measurement protocol, GPS position and velocity,
+camera vectors, and the gated stacked Schmidt update of one epoch.
+
+The protocol
+------------
+A measurement source (:class:`GpsFixes`, :class:`CameraVectors`) wraps one input stream and
+supplies, for its measurement ``j``:
+
+* ``name`` (``"gps"``, ``"vec"``) and ``t_ns`` (N,), the stamps; ``stream_keys()``: the key of the
+  stream each measurement belongs to (each stream must be time ordered; the filter rejects a
+  measurement not later than its predecessor in the same stream);
+* ``clock_shift(j, st)``: seconds subtracted from the time between the current IMU sample and the
+  stamp (a camera clock offset estimate), 0 for GPS;
+* ``fill(j, t_ns, at, st, stack)``: the candidate blocks of the measurement, appended to the
+  epoch's :class:`EpochStack`: ``stack.reserve(m)`` gives the first of m rows (the source writes
+  them whole) of the stacked Jacobian ``stack.H`` (m, n) and innovation ``stack.s``;
+  ``stack.add(...)`` records each block with its kind, camera, noise R and input problem (a
+  reason string, or None). ``at`` is
+  ``(f, w, dt_m)``: the IMU sample covering the interval to the stamp and its length [s], from
+  which ``st.extrapolate(*at)`` gives the state at the stamp (``x_m, v_m, R_m, w_eb``,
+  :func:`nav.filter_state.extrapolate`; a kernel may do it itself, as :func:`gps_fill_kernel`);
+  ``st`` is the :class:`nav.filter_state.FilterState` (layout, P, fed-back estimates).
+
+The epoch (:meth:`EpochStack.apply`) then gates every block without an input problem on its own
+NIS (its diagonal block of ``S = H P H^T + R`` with the prior P, chi-square gate of its dimension)
+and applies the accepted ones in one Schmidt update in Joseph form
+(:func:`nav.schmidt.update_kernel`), followed by the feedback. Stacking with a block-diagonal R
+is the sequential update of the blocks in exact arithmetic.
+
+Adding a measurement is one source class with these three methods (its rows usually from a
+numba kernel like :func:`gps_rows_kernel` or the numpy observation equations of
+:mod:`nav.measurements`), its tuning entry in :class:`nav.tuning.Tuning`, and the source added to
+the list :func:`nav.navigator.run` builds.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from nav.earth import OMEGA_E
+from nav.ephemeris import moon_position_e, sun_position_e
+from nav.filter_state import extrapolate, feedback_kernel
+from nav.measurements import (predict_vector, target_direction_e, vector_covariance_problem,
+                              vector_covariance_problems, vector_jacobians, vector_rate)
+from nav.rotation import tangent_basis
+from nav.schmidt import GATED, NONFINITE, OK, REASONS, chi2_gate, update_kernel
+
+log = logging.getLogger("nav.navigator")   # the run's logger: rejections are part of its report
+
+NS = 1_000_000_000
+
+
+@dataclass
+class Innovation:
+    t_ns: int
+    kind: str          #: "gps_pos", "gps_vel", "hor", "sun", "moon"
+    camera: int        #: -1 for GPS
+    s: np.ndarray      #: innovation (tangent-plane 2-vector for camera vectors)
+    S: np.ndarray      #: predicted innovation covariance
+    nis: float
+    accepted: bool
+    reason: str | None
+
+
+class EpochStack:
+    """The candidate blocks of one epoch, stacked: Jacobian rows ``H`` (rows, n), innovations ``s``
+    and, per block, ``(t_ns, kind, camera, first row, dimension, R, problem)``; ``triad``: the
+    horizon / Sun direction pairs of the epoch by stamp, for TRIAD."""
+
+    def __init__(self, n: int, gate_probability: float):
+        self.H = np.zeros((8, n))
+        self.s = np.empty(8)
+        self.m = 0
+        self.blocks = []
+        self.triad = {}
+        self._p = gate_probability
+        self._gates = {}
+        self._patterns = {}
+
+    def reset(self) -> None:
+        self.m = 0
+        self.blocks = []
+        self.triad = {}
+
+    def reserve(self, m: int) -> int:
+        """First of ``m`` new rows of ``H`` and ``s`` (the source writes them whole)."""
+        o = self.m
+        if o + m > self.s.size:
+            cap = 2 * (o + m)
+            H, s = np.zeros((cap, self.H.shape[1])), np.empty(cap)
+            H[:o], s[:o] = self.H[:o], self.s[:o]
+            self.H, self.s = H, s
+        self.m = o + m
+        return o
+
+    def add(self, t_ns: int, kind: str, camera: int, o: int, dim: int, R, problem) -> None:
+        self.blocks.append((t_ns, kind, camera, o, dim, R, problem))
+
+    def _pattern(self, sizes: tuple):
+        """For a sequence of block sizes: row offsets (array and list), chi-square gates, and the
+        update's work arrays (R, zero off the diagonal blocks; S; nis; code), reused."""
+        pat = self._patterns.get(sizes)
+        if pat is None:
+            offs = np.zeros(len(sizes) + 1, dtype=np.int64)
+            np.cumsum(sizes, out=offs[1:])
+            for d in sizes:
+                if d not in self._gates:
+                    self._gates[d] = chi2_gate(d, self._p)
+            m, nb_ = int(offs[-1]), len(sizes)
+            pat = self._patterns[sizes] = (offs, offs.tolist(), np.array([self._gates[d] for d in sizes]),
+                                           np.zeros((m, m)), np.empty((m, m)), np.empty(nb_),
+                                           np.empty(nb_, dtype=np.int64))
+        return pat
+
+    def apply(self, st, innovations: list, rejected, t_k: int) -> np.ndarray | None:
+        """Gate the blocks, apply the accepted ones (P in place) and feed back: the correction
+        ``dx`` when an update was applied, else None. Each block's innovation is appended to
+        ``innovations``; rejections are counted in ``rejected`` and logged."""
+        good = [b for b in self.blocks if b[6] is None]
+        status, dx = GATED, None
+        if good:
+            status, dx, S_all, offs, code, nis_l = self._update(st, good)
+        gi = 0
+        for t_m, kind, cam, o, dim, R, bad in self.blocks:
+            nis, S = np.nan, None
+            if bad is None:
+                if code[gi] != NONFINITE:
+                    S = S_all[offs[gi]:offs[gi + 1], offs[gi]:offs[gi + 1]].copy()
+                nis = nis_l[gi]
+                if code[gi] != OK:
+                    bad = REASONS[code[gi]]
+                gi += 1
+            if S is None:
+                S = np.full(np.shape(R), np.nan)
+            innovations.append(Innovation(t_m, kind, cam, self.s[o:o + dim].copy(), S, nis, bad is None, bad))
+            if bad is not None:
+                rejected[f"{kind}_{bad}"] += 1
+                log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
+        if status == OK:
+            return dx
+        if good and status != GATED:
+            rejected[f"batch_{REASONS[int(status)]}"] += 1
+            log.warning("update at %d ns rejected: %s", t_k, REASONS[int(status)])
+        return None
+
+    def _update(self, st, good):
+        """:func:`update_feedback_kernel` on the blocks without input problems."""
+        offs, offs_l, gates, R, S, nis, code = self._pattern(tuple([b[4] for b in good]))
+        m = offs_l[-1]
+        if m == self.m:
+            H, s = self.H[:m], self.s[:m]
+        else:
+            rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in good])
+            H, s = self.H[rows], self.s[rows]
+        for i, b in enumerate(good):
+            R[offs_l[i]:offs_l[i + 1], offs_l[i]:offs_l[i + 1]] = b[5]
+        dx = np.empty(st.n)
+        status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
+                                                 st.nav, st.fed, st.fb)
+        if changed:
+            st.calibration_changed()
+        return status, dx, S, offs_l, code.tolist(), nis.tolist()
+
+
+@nb.njit(cache=True)
+def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, fed, fb):
+    """The gated stacked Schmidt update (:func:`nav.schmidt.update_kernel`, arguments as there)
+    and, when it is applied, the feedback of ``dx`` (:func:`nav.filter_state.feedback_kernel`).
+    Returns ``(status, IMU calibration changed)``."""
+    status = update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx)
+    changed = False
+    if status == OK:
+        changed = feedback_kernel(dx, nav, fed, fb)
+    return status, changed
+
+
+class GpsFixes:
+    """GPS antenna fixes: a position block ``"gps_pos"`` and, with velocities, a velocity block
+    ``"gps_vel"`` per fix (3 rows each, :func:`gps_rows_kernel`; noise the fix's covariances).
+    Input problems: :func:`cov3_problems` of each block."""
+    name = "gps"
+
+    def __init__(self, gps, lever_b, layout):
+        self.t_ns = np.asarray(gps.t_ns, dtype=np.int64)
+        self.has_v = gps.v_e is not None
+        self.x = np.ascontiguousarray(gps.x_e, float)
+        self.v = np.ascontiguousarray(gps.v_e, float) if self.has_v else self.x
+        self.P_x = np.asarray(gps.P_x, float)
+        self.P_v = np.asarray(gps.P_v, float) if self.has_v else None
+        self.bad_x = list(cov3_problems(self.x, self.P_x))
+        self.bad_v = list(cov3_problems(self.v, self.P_v)) if self.has_v else None
+        self.lever = np.asarray(lever_b, float)
+        self.cols = np.array([layout["dx"].start, layout["dv"].start, layout["psi"].start], np.int64)
+
+    def stream_keys(self):
+        return [0] * self.t_ns.size
+
+    def clock_shift(self, j: int, st) -> float:
+        return 0.0
+
+    def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
+        m = 6 if self.has_v else 3
+        o = stack.reserve(m)
+        f, w, dt_m = at
+        gps_fill_kernel(st.nav, f, w, dt_m, self.lever, self.x[j], self.v[j], self.has_v, self.cols,
+                        stack.H[o:o + m], stack.s[o:o + m])
+        stack.add(t_m, "gps_pos", -1, o, 3, self.P_x[j], self.bad_x[j])
+        if self.has_v:
+            stack.add(t_m, "gps_vel", -1, o + 3, 3, self.P_v[j], self.bad_v[j])
+
+
+@nb.njit(cache=True)
+def gps_fill_kernel(nav, f, w, dt_m, lever, xg, vg, has_v, cols, H, s):
+    """:func:`nav.filter_state.extrapolate` to the fix's time, then :func:`gps_rows_kernel` into
+    the rows ``H`` (zeroed first) and ``s``."""
+    x_m, v_m, R_m, w_eb = extrapolate(nav, f, w, dt_m, OMEGA_E)
+    H[:, :] = 0.0
+    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, cols, H, s)
+
+
+@nb.njit(cache=True)
+def gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, cols, H, s):
+    """GPS antenna position (and velocity) innovations and Jacobians (:func:`nav.measurements.gps_position`,
+    :func:`nav.measurements.gps_velocity`) written into ``s`` (3 or 6,) and the zero-initialised
+    ``H`` (3 or 6, n); ``cols`` = first index of dx, dv, psi."""
+    ix, iv, ip = cols[0], cols[1], cols[2]
+    r = R_m @ lever
+    for i in range(3):
+        s[i] = xg[i] - (x_m[i] + r[i])
+        H[i, ix + i] = 1.0
+    _lever_rows(r, ip, 0, H)
+    if has_v:
+        wl = np.empty(3)
+        wl[0] = w_eb[1] * lever[2] - w_eb[2] * lever[1]
+        wl[1] = w_eb[2] * lever[0] - w_eb[0] * lever[2]
+        wl[2] = w_eb[0] * lever[1] - w_eb[1] * lever[0]
+        u = R_m @ wl
+        for i in range(3):
+            s[3 + i] = vg[i] - (v_m[i] + u[i])
+            H[3 + i, iv + i] = 1.0
+        _lever_rows(u, ip, 3, H)
+
+
+@nb.njit(cache=True)
+def _lever_rows(r, ip, row, H):
+    """``-[r x]`` into the attitude columns ``ip..ip+2`` of rows ``row..row+2`` of H."""
+    H[row, ip + 1] = r[2]; H[row, ip + 2] = -r[1]
+    H[row + 1, ip + 0] = -r[2]; H[row + 1, ip + 2] = r[0]
+    H[row + 2, ip + 0] = r[1]; H[row + 2, ip + 1] = -r[0]
+
+
+class CameraVectors:
+    """Camera direction vectors: one 2-row block per vector in the plane tangent to the predicted
+    vector (:mod:`nav.measurements`; kind = the target, camera = its index), with the clock offset
+    and Gauss-Markov columns where the layout has them. Input problems: unknown camera, target
+    not modelled, non-finite vector, :func:`nav.measurements.vector_covariance_problem`."""
+    name = "vec"
+
+    def __init__(self, vec, layout, tuning, n_cam: int):
+        self.t_ns = np.asarray(vec.t_ns, dtype=np.int64)
+        self.camera = np.asarray(vec.camera).astype(np.int64).tolist()
+        self.target = [str(g) for g in vec.target]
+        self.e_c, self.P_c = vec.e_c, vec.P_c
+        self.layout, self.tuning, self.n_cam = layout, tuning, n_cam
+        self.problems = vector_problems(vec)
+        self.body_pos = {}
+        tg = np.asarray(vec.target)
+        for name, fn in (("sun", sun_position_e), ("moon", moon_position_e)):
+            mask = tg == name
+            if self.t_ns.size and mask.any():
+                pos = np.full((self.t_ns.size, 3), np.nan)
+                pos[mask] = fn(self.t_ns[mask])
+                self.body_pos[name] = pos
+
+    def stream_keys(self):
+        return list(zip(self.camera, self.target))
+
+    def clock_shift(self, j: int, st) -> float:
+        c = self.camera[j]
+        return st.clk_hat[c] if self.n_cam and 0 <= c < self.n_cam else 0.0
+
+    def _problem(self, j: int):
+        """``(e_c normalised, P_c, None)`` or ``(None, None, reason)``."""
+        if not (0 <= self.camera[j] < self.n_cam):
+            return None, None, "unknown camera"
+        if self.target[j] not in self.layout.targets:
+            return None, None, "target not modelled"
+        e_c = np.asarray(self.e_c[j], float)
+        P_c = np.asarray(self.P_c[j], float)
+        nrm = np.linalg.norm(e_c) if np.all(np.isfinite(e_c)) else np.nan
+        if not np.isfinite(nrm) or nrm == 0:
+            return None, None, "non-finite vector"
+        e_c = e_c / nrm
+        bad = self.problems[j] if self.problems is not None else vector_covariance_problem(P_c, e_c)
+        return e_c, P_c, bad
+
+    def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
+        cam, target = self.camera[j], self.target[j]
+        o = stack.reserve(2)
+        e_c, P_c, bad = self._problem(j)
+        if bad:
+            stack.H[o:o + 2] = 0.0
+            stack.s[o:o + 2] = np.nan
+            stack.add(t_m, target, cam, o, 2, np.eye(2), bad)
+            return
+        x_m, v_m, R_m, w_eb = st.extrapolate(*at)
+        lay, n = self.layout, st.n
+        R_bc = st.R_bc[cam]
+        tpos = self.body_pos[target][j] if target in self.body_pos else None
+        u_e = target_direction_e(target, x_m, tpos)
+        zname = lay.zeta_name(cam, target)
+        has_z = lay.has(zname)
+        pred = predict_vector(u_e, R_m, R_bc)
+        if has_z:
+            pred = pred + st.zeta[st.zeta_index[zname]]
+        T = tangent_basis(pred)
+        H_dx, H_psi, H_psic = vector_jacobians(target, x_m, u_e, R_m, R_bc, tpos)
+        H3 = np.zeros((3, n))
+        H3[:, lay["dx"]] = H_dx
+        H3[:, lay["psi"]] = H_psi
+        if lay.has(lay.cam_name(cam)):
+            H3[:, lay[lay.cam_name(cam)]] = H_psic
+        if lay.has(lay.clock_name(cam)):
+            # the frame was taken at stamp - offset_true = t_est - dt_c: e_true = e(t_est) - de_c/dt dt_c
+            H3[:, lay[lay.clock_name(cam)].start] = -vector_rate(target, x_m, v_m, u_e, R_m, R_bc, w_eb, tpos)
+        R3 = self.tuning.vector_white ** 2 * np.eye(3)
+        if has_z:
+            H3[:, lay[zname]] = np.eye(3)
+            self._restart_zeta(st, zname, t_m, P_c)
+        else:
+            R3 = R3 + 0.5 * (P_c + P_c.T)
+        stack.triad.setdefault(t_m, {})[target] = (R_bc @ e_c, u_e)
+        stack.H[o:o + 2] = T.T @ H3
+        stack.s[o:o + 2] = T.T @ (e_c - pred)
+        stack.add(t_m, target, cam, o, 2, T.T @ R3 @ T, None)
+
+    def _restart_zeta(self, st, zname: str, t_m: int, P_c) -> None:
+        """Quasi-stationary P_c of 003 eq. (44): a first (or stale, > 3 T_c) sighting restarts the
+        Gauss-Markov process at this measurement's covariance (P in place, estimate zero); later
+        ones set the driving noise (eq. (45)). A floor of (1e-6)^2 keeps P positive definite
+        along the vector, where P_c is singular."""
+        sl = self.layout[zname]
+        i = st.zeta_index[zname]
+        P_c_model = 0.5 * (P_c + P_c.T) + (1e-6) ** 2 * np.eye(3)
+        if zname not in st.last_seen or (t_m - st.last_seen[zname]) > 3 * self.tuning.correlation_time_s * NS:
+            st.P[sl, :] = 0.0
+            st.P[:, sl] = 0.0
+            st.P[sl, sl] = P_c_model
+            st.zeta[i] = 0.0
+        st.P_c[i] = P_c_model
+        st.last_seen[zname] = t_m
+
+
+def vector_problems(vec):
+    """Covariance problems of every camera vector at once (:func:`nav.measurements.vector_covariance_problems`
+    on the normalised vectors), or None when the arrays are not (N, 3, 3) / (N, 3) (then each
+    vector is checked on its own)."""
+    P_c = np.asarray(vec.P_c, float)
+    e_c = np.asarray(vec.e_c, float)
+    N = e_c.shape[0] if e_c.ndim else 0
+    if N == 0 or P_c.shape != (N, 3, 3) or e_c.shape != (N, 3):
+        return None
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e = e_c / np.linalg.norm(e_c, axis=1, keepdims=True)
+    return vector_covariance_problems(P_c, e)
+
+
+def cov3_problems(z, R):
+    """Per row, why a 3-vector ``z`` (N, 3) with covariance ``R`` (N, 3, 3) is unusable, or None:
+    "non-finite", "non-symmetric covariance" (1e-9 relative), "covariance not positive definite"."""
+    N = z.shape[0]
+    out = np.full(N, None, dtype=object)
+    if N == 0:
+        return out
+    fin = np.all(np.isfinite(z), axis=1) & np.all(np.isfinite(R), axis=(1, 2))
+    out[~fin] = "non-finite"
+    with np.errstate(invalid="ignore"):
+        scale = np.maximum(np.max(np.abs(R), axis=(1, 2)), 1e-300)
+        asym = fin & (np.max(np.abs(R - np.swapaxes(R, 1, 2)), axis=(1, 2)) > 1e-9 * scale)
+    out[asym] = "non-symmetric covariance"
+    ok = np.flatnonzero(fin & ~asym)
+    if ok.size:
+        U, inv = np.unique(R[ok].reshape(-1, 9), axis=0, return_inverse=True)
+        U = U.reshape(-1, 3, 3)
+        try:
+            np.linalg.cholesky(U)
+            pd = np.ones(len(U), bool)
+        except np.linalg.LinAlgError:
+            pd = np.array([_positive_definite(u) for u in U])
+        out[ok[~pd[inv.reshape(-1)]]] = "covariance not positive definite"
+    return out
+
+
+def _positive_definite(R) -> bool:
+    try:
+        np.linalg.cholesky(R)
+    except np.linalg.LinAlgError:
+        return False
+    return True
