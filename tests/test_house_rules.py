@@ -81,3 +81,23 @@ def test_pure_packages_do_not_import_scenarios():
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             hits += [f"{p.relative_to(ROOT)}:{node.lineno} {n}" for n in names if n.split(".")[0] == "scenarios"]
     assert not hits, "\n".join(hits)
+
+
+def _packages_on_disk():
+    """Every package folder of nav, vision and scenarios (a folder with ``__init__.py``)."""
+    return {str(p.parent.relative_to(ROOT)) + "/" for top in ("nav", "vision", "scenarios")
+            for p in (ROOT / top).rglob("__init__.py") if "__pycache__" not in p.parts}
+
+
+def _folders_in_table(text: str):
+    return set(re.findall(r"^\| `([\w/]+/)` \|", text, re.MULTILINE))
+
+
+def test_readme_and_architecture_tables_match_the_tree():
+    on_disk = _packages_on_disk() - {"scenarios/library/"}
+    readme = _folders_in_table((ROOT / "README.md").read_text())
+    arch = _folders_in_table((ROOT / "docs" / "architecture.md").read_text())
+    assert on_disk <= readme, f"packages missing from README's layout table: {sorted(on_disk - readme)}"
+    assert {f for f in readme if (ROOT / f).is_dir()} == readme, "README names folders that do not exist"
+    assert on_disk - {"nav/", "vision/", "scenarios/"} <= arch | {"scenarios/"}, sorted(on_disk - arch)
+    assert all((ROOT / f).is_dir() for f in arch), "docs/architecture.md names folders that do not exist"
