@@ -227,8 +227,8 @@ def _compressed_image_span(buf, off: int, ln: int) -> tuple[int, int] | None:
     """``(start, length)`` in ``buf`` of the ``data`` bytes of one little-endian CDR
     ``sensor_msgs/CompressedImage`` message at ``buf[off:off + ln]``, or None when it does not
     parse as one. The same bytes as the general decoder (:meth:`ImageStream._decode`,
-    tests/test_log_format.py), read directly: that decoder works on message matrices and costs ~0.17 ms
-    for a single message, once per frame in the vision workers and again for the recording.
+    tests/test_log_format.py), read directly: that decoder works on message matrices, and its set-up cost for a single
+    message would be paid once per frame in the vision workers and again for the recording.
 
     Layout after the 4-byte encapsulation header (0, 1, options), each 4-byte length aligned to 4
     from there: ``stamp`` (int32 sec, uint32 nanosec), ``frame_id`` (length incl. NUL, bytes),

@@ -82,7 +82,7 @@ class RunConfig:
         "cached": the predicted covariance of every frame is computed once per scenario variant
         with the nominal camera mounting and re-projected onto each run's true direction (see
         :mod:`scenarios.study.runner`); "exact": :func:`scenarios.sim.truth_vectors.flight_truth_vectors`
-        per run (the true mounting; ~3 s more per atek coast run).
+        per run (the true mounting; slower: the covariance is computed for every run).
     init : str
         "perturbed": the truth at ``t_start_s`` minus an error drawn with the ``init_*`` sigmas;
         "truth": the exact truth.
