@@ -38,11 +38,6 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return atomic_output(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically."""
-    return atomic_output(path, lambda tmp: Path(tmp).write_bytes(data))
-
-
 def move_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
     """Rename the finished file ``tmp`` to ``path``; a file already there is renamed aside first
     and deleted after. For large files written without fsync (the Rerun recording), where

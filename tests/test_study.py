@@ -134,7 +134,7 @@ def test_too_many_runs_need_yes(tmp_path):
     st = write_study(tmp_path, runs=50, extra="max_runs = 100",
                      body='[grid]\n"run.report_scale" = [1.0, 0.5, 0.2]\n')
     out = tmp_path / "out"
-    with pytest.raises(UserError, match=r"150 runs .*max_runs = 100.*--yes"):
+    with pytest.raises(UserError, match=r"150 runs .*max_runs = 100.*yes=True"):
         run_study(st, out, workers=0, progress=False)
     assert not out.exists()
 

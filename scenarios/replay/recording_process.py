@@ -223,7 +223,7 @@ class RecordingProcess:
                 temporary_path(rrd).touch()
                 temporary_path(rrd).unlink()
             except OSError as e:
-                raise UserError(f"--rrd {rrd}: the recording cannot be written there ({e})") from None
+                raise UserError(f"rrd = {rrd}: the recording cannot be written there ({e})") from None
         self.rrd = rrd
         self._send("setup", inp if self._local is not None else drawn_inputs(inp), cam_numbers, self.rrd, spawn,
                    track, image_rate_hz)

@@ -77,11 +77,6 @@ def cached_truth(sc, t_end: float):
     return _TRUTH[key]
 
 
-def clear_caches() -> None:
-    _TRUTH.clear()
-    _COV.clear()
-
-
 def _nominal_covariances(sc, truth, ci: int, cam_cfg, cam_truth_nominal, cam_model, rc: RunConfig):
     """Per frame and target: P_c (3, 3) predicted for the nominal mounting, NaN where no vector."""
     key = (_truth_key(sc, rc.t_end_s), repr(dataclasses.asdict(cam_cfg)), rc.sun_bloom, rc.min_pixels,

@@ -307,12 +307,12 @@ def apply_params(base: dict, params: dict, where: str = "<study>") -> dict:
 
 def build_variant(study: Study, variant: Variant, base: dict | None = None) -> dict:
     """Scenario, tuning and run config of one variant, validated (fixed settings, then the variant's)."""
-    from scenarios.sim.scenario import _check_consistency
+    from scenarios.sim.scenario import check_consistency
 
     base = base or load_base(study)
     where = f"{study.path}: variant {variant.label!r}"
     cfg = apply_params(base, {**study.fixed, **variant.params}, where)
-    _check_consistency(cfg["scenario"], where)
+    check_consistency(cfg["scenario"], where)
     cfg["run"].check(where)
     t = cfg["tuning"]
     for name in ("accel_bias", "accel_scale", "accel_misalignment", "gyro_bias", "gyro_scale",
