@@ -9,7 +9,7 @@ import math
 import numba
 import numpy as np
 
-from vision._kernels import nb_tangent_basis
+from nav._kernels import tangent_basis as nb_tangent_basis
 from vision.covariance import tangent_basis
 from vision.nadir import ConeFit, angle_residual, conic_type, direction_and_radius, nadir_from_horizon, within_cone
 

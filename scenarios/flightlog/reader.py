@@ -537,7 +537,7 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
     short = lf.short_name(sname)
     layout = _layout_for(sname, senc, stext, msg_enc)
     if short == "tf2_msgs/TFMessage" or (senc == "ros2msg" and layout is None):
-        _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts)
+        _decode_by_message(log, rd, topic, sname, senc, stext, msg_enc, parts)
         return
     if layout is None:
         rd.warn(f"{path}: topic {topic}: unknown schema {sname!r} (encoding {senc!r}/{msg_enc!r}); skipped")
@@ -695,7 +695,7 @@ def _shape_fields(short: str, vals: dict) -> dict:
     return out
 
 
-def _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts):
+def _decode_by_message(log, rd, topic, sname, senc, stext, msg_enc, parts):
     """Decode a channel message by message with mcap_ros2's decoder (tf_static and exotic schemas)."""
     from mcap.records import Schema
     from mcap_ros2.decoder import DecoderFactory

@@ -9,7 +9,7 @@ disturbances; atmosphere, payload and noise kept). Rendered frames are cached un
 $TMPDIR/horizon-nav-bench-vision-<version> (delete it to re-render). QUICK: every 10th second.
 
 Truth per frame: the renderer's e_c_earth (geocentric nadir), e_c_sun, sun_visible; "horizon in
-view" = at least 10 % of the limb (exact WGS-84 + d limb rays, vision.oblate.ellipsoid_limb_rays)
+view" = at least 10 % of the limb (exact WGS-84 + d limb rays, tests.poses.ellipsoid_limb_rays)
 projects into the image outside the payload mask.
 """
 from __future__ import annotations
@@ -29,7 +29,8 @@ from scenarios.config.vision import load_vision_config
 from vision import mask as vmask
 from vision.camera import project
 from vision.frontend import FramePrior, process_frame
-from vision.oblate import ellipsoid_limb_rays
+
+from tests.poses import ellipsoid_limb_rays
 
 CACHE_VERSION = 2   # 2: twilight Sun path with the erf air mass (scenarios/sim/_render_kernel.py)
 LOOKS = {
