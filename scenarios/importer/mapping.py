@@ -189,6 +189,7 @@ class Checks:
     height_max_m: float = 3_000_000.0
     speed_max_mps: float = 9000.0
     gap_factor: float = 1.5  # a gap is a step > gap_factor x the median step
+    span_max_h: float = 72.0  # a record spans at most this long and starts this close to lift-off
     errors_fatal: bool = True
 
 

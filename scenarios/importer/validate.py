@@ -370,8 +370,10 @@ def save_report(report: Report, out_dir: Path, imu=None, gps=None, footages=()) 
 
 
 def validate(imu=None, gps=None, footages=(), *, checks: Checks = Checks(), liftoff_ns: int = 0,
-             gyro_unit: str = "rad/s", accel_unit: str = "m/s^2") -> Report:
-    """The report of one import (arrays already converted to SI, body / ECEF frames)."""
+             gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", gps_spec=None) -> Report:
+    """The report of one import (arrays already converted to SI, body / ECEF frames), with the
+    physical cross-checks between the sensors (:mod:`.crosscheck`; ``gps_spec``: the mapping's
+    ``[gps]``, to name the likely cause of a failure)."""
     rep = Report(liftoff_ns=int(liftoff_ns))
     streams = {}
     if imu is not None:
@@ -384,4 +386,6 @@ def validate(imu=None, gps=None, footages=(), *, checks: Checks = Checks(), lift
         check_footage(rep, fp, checks)
         streams[f"camera_{fp.k}"] = fp.t_ns
     check_overlap(rep, streams)
+    from .crosscheck import cross_check
+    cross_check(rep, imu, gps, gps_spec, rep.streams["imu"].rate_hz if "imu" in rep.streams else None)
     return rep
