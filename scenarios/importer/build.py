@@ -137,6 +137,9 @@ def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, windo
             "description": m.description, "mapping": m.text, "import_report": prep.report.to_json()}
     if imu is not None:
         meta["imu_output"] = imu.output
+        meta["imu_sample"] = "point" if m.imu.imu_sample == "point" else "average"
+    if gps is not None and not gps.has_velocity:
+        meta["gps_velocity"] = "none"
     counts = {"imu": 0, "gps": 0, **{f"camera_{cs.k}": 0 for cs, _, _ in prep.cameras}}
     with LogWriter(output, meta, compression=compression, partial_on_error=keep_partial) as w:
         if prep.cameras:

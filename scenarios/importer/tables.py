@@ -359,8 +359,10 @@ def read_imu(spec: ImuSpec, liftoff_ns: int) -> ImuData:
 
 @dataclass
 class GpsData:
-    """GPS fixes: ``t_ns`` UTC, ``position`` / ``velocity`` (N, 3) ECEF [m], [m/s] (velocity NaN-free;
-    zeros with ``has_velocity`` False when not mapped), covariances (N, 3, 3) (zeros = unknown)."""
+    """GPS fixes: ``t_ns`` UTC, ``position`` / ``velocity`` (N, 3) ECEF [m], [m/s], covariances
+    (N, 3, 3). Position-only fixes (no velocity mapped, ``has_velocity`` False) have NaN velocities
+    and velocity covariances: "no measurement", never a zero velocity known exactly.
+    ``sigma_default``: which uncertainties came from the mapping's defaults ("" = none)."""
     file: Path
     t_ns: np.ndarray
     position: np.ndarray
@@ -372,6 +374,7 @@ class GpsData:
     rows: int
     dropped_rows: int = 0
     order: OrderInfo = field(default_factory=OrderInfo)
+    sigma_default: str = ""
 
 
 def _cov_matrix(raw: RawTable, c: Covariance | None, n: int, R_en: np.ndarray | None, keep) -> np.ndarray:
@@ -413,6 +416,8 @@ def read_gps(spec: GpsSpec, liftoff_ns: int) -> GpsData:
     v = (np.column_stack([floats(raw, c, allow_missing=True) for c in spec.velocity])
          if spec.velocity else np.zeros_like(p))
     keep = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(v), axis=1)
+    if not spec.velocity:
+        v = np.full_like(p, np.nan)
     raw_keep = keep
     t = times_ns(raw, ts, liftoff_ns)[keep]
     p, v = p[keep], v[keep]
@@ -440,14 +445,32 @@ def read_gps(spec: GpsSpec, liftoff_ns: int) -> GpsData:
         if spec.velocity_frame == "ned":
             v = np.einsum("nij,nj->ni", R, v)
     Pp = _cov_matrix(raw, spec.position_cov, n, R, raw_keep)
-    Pv = _cov_matrix(raw, spec.velocity_cov, n, R, raw_keep)
+    Pv = (_cov_matrix(raw, spec.velocity_cov, n, R, raw_keep) if spec.velocity
+          else np.full((n, 3, 3), np.nan))
+    note = spec.sigma_default
+    for P, name, sig, on in ((Pp, "position", spec.fallback_sigmas[0], True),
+                             (Pv, "velocity", spec.fallback_sigmas[1], spec.velocity is not None)):
+        bad = ~_positive_definite(P) if on and n else np.zeros(0, bool)
+        if bad.any():  # a zero or missing uncertainty would make the filter reject the fix (or trust it fully)
+            P[bad] = np.eye(3) * sig * sig
+            note += ("; " if note else "") + (f"{int(bad.sum())} fix(es) with a zero, missing or non-positive "
+                                              f"{name} uncertainty take {sig:g} {'m' if name == 'position' else 'm/s'}")
     ns = (np.nan_to_num(floats(raw, spec.num_satellites, allow_missing=True)[keep]).astype(np.uint16)
           if spec.num_satellites else np.zeros(n, np.uint16))
     idx, info = order_rows(raw, t, spec.table.unsorted, "[gps]", np.flatnonzero(keep))
     if idx is not None:
         t, x, v, Pp, Pv, ns = t[idx], x[idx], v[idx], Pp[idx], Pv[idx], ns[idx]
     return GpsData(spec.table.file, t, x, v, Pp, Pv, ns, spec.velocity is not None, raw.nrows,
-                   int(np.count_nonzero(~keep)), info)
+                   int(np.count_nonzero(~keep)), info, note)
+
+
+def _positive_definite(P: np.ndarray) -> np.ndarray:
+    """Per (3, 3) matrix: finite, symmetric and positive definite (smallest eigenvalue > 0)."""
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    ok &= np.all(np.abs(P - np.swapaxes(P, 1, 2)) <= 1e-9 * np.abs(P).max(axis=(1, 2), initial=0)[:, None, None],
+                 axis=(1, 2))
+    ev = np.linalg.eigvalsh(np.where(ok[:, None, None], P, np.eye(3)))
+    return ok & (ev[:, 0] > 0)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -524,7 +547,9 @@ def times_s(raw: RawTable, spec: TimeSpec, liftoff_ns: int) -> np.ndarray:
         return x
     if spec.base == "mission":
         return liftoff_ns / 1e9 + x
-    gps0 = GPS_EPOCH_S
+    # GPS time runs ahead of UTC by the leap seconds since 1980: those at the lift-off (exact near it)
+    from nav.timescales import utc_to_gps_ns
+    gps0 = GPS_EPOCH_S - (GPS_EPOCH_S * 1e9 + int(utc_to_gps_ns(liftoff_ns, beyond_table="hold")) - liftoff_ns) / 1e9
     if spec.base == "gps":
         return gps0 + x
     week = (np.full(raw.nrows, spec.week, np.float64) if spec.week is not None

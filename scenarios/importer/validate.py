@@ -251,6 +251,9 @@ def check_gps(report: Report, gps, checks: Checks) -> None:
     st = time_stats(report, "gps", gps.t_ns, checks)
     if st is None:
         return
+    if gps.sigma_default:
+        report.add("warning", "gps", "sigma", f"uncertainties from defaults: {gps.sigma_default}; give "
+                                              "position_sigma / velocity_sigma columns when the receiver logs them")
     if gps.dropped_rows:
         report.add("info", "gps", "no_fix", f"{gps.dropped_rows} row(s) without a position (no fix) dropped")
     if gps.order.sorted:
