@@ -106,8 +106,28 @@ def check_gps_velocity(report, gps, spec) -> None:
     if e <= thr:
         report.add("info", "gps", "gps_velocity", stat)
         return
+    k = _best_scale(t, gps.position, gps.velocity, T)
+    rk = _velocity_residual(t, gps.position, gps.velocity * k, T) if np.isfinite(k) and k > 0 else None
+    if rk is not None and rk[0] <= 4.0 * np.sqrt(2.0) * sp / T + 0.05 * rk[1]:
+        # the directions agree, only the magnitudes differ: a unit (the velocity_consistency
+        # warning of validate says so too); the filter's gate rejects such velocities
+        report.add("warning", "gps", "gps_velocity", f"{stat}: the velocities point the right way but are "
+                                                     f"{1 / k:.4g} x the position rate: check the velocity unit")
+        return
     cause = _velocity_cause(gps, spec, t, T, thr)
     report.add("error", "gps", "gps_velocity", f"the velocities disagree with the positions: {stat}; {cause}")
+
+
+def _best_scale(t, x, v, T) -> float:
+    """Least-squares factor k of the velocity integrals onto the displacements (module docstring)."""
+    i, j = _baselines(t, T)
+    if i.size == 0:
+        return float("nan")
+    dt = np.diff(t)[:, None]
+    C = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0)])
+    a, b = x[j] - x[i], C[j] - C[i]
+    den = float(np.sum(b * b))
+    return float(np.sum(a * b) / den) if den > 0 else float("nan")
 
 
 def _velocity_cause(gps, spec, t, T, thr) -> str:
