@@ -195,6 +195,11 @@ def test_position_only_gps_imports_and_replays(rocket):
         log = read_log(d / "posonly.mcap")
     assert np.all(np.isnan(log.gps.velocity)) and np.all(np.isnan(log.gps.velocity_covariance))
     assert log.info["gps_velocity"] == "none"
+    from scenarios.importer.export import export_log
+    exp = export_log(d / "posonly.mcap", d / "posonly-export", images=False, video=False)
+    import_flight(exp.files["mapping"], d / "posonly-again.mcap")
+    again = read_log(d / "posonly-again.mcap").gps
+    assert np.array_equal(again.position, log.gps.position) and np.all(np.isnan(again.velocity))
     import_flight(mapping(d, "posvel.toml"), d / "posvel.mcap")
     e_pv, _ = _replay_error(d, d / "posvel.mcap", fl, "posvel")
     e_po, r = _replay_error(d, d / "posonly.mcap", fl, "posonly")

@@ -44,7 +44,6 @@ from __future__ import annotations
 import numpy as np
 
 from nav import earth, ins
-from nav.rotation import quat_to_matrix
 
 BASELINE_S = 10.0
 MOVING_MPS = 5.0
@@ -249,6 +248,14 @@ def _saturated(w, rate_hz, declared=None) -> np.ndarray:
     return out
 
 
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``R(q) v`` row by row for quaternions [x, y, z, w] (scalar last, as :func:`nav.rotation.quat_to_matrix`),
+    without forming the (N, 3, 3) matrices: ``v + 2 w (u x v) + 2 u x (u x v)``."""
+    u, w = q[:, :3], q[:, 3:4]
+    c = np.cross(u, v)
+    return v + 2.0 * w * c + 2.0 * np.cross(u, c)
+
+
 def _angle_deg(a, b):
     c = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
@@ -265,7 +272,7 @@ def check_gyro_rotation(report, imu, gps, rate_hz, *, diagnose: bool = True) -> 
     w, f = _imu_rates(imu)
     _, _, Q = ins.propagate(gps.position[0], gps.velocity[0], np.array([0.0, 0.0, 0.0, 1.0]), ti, f, w,
                             sample="average" if imu.output == "increment" else "point")
-    f_rot = np.einsum("nij,nj->ni", quat_to_matrix(Q), f)
+    f_rot = _rotate(Q, f)
     i, j, fg = _gps_force(gps, tg)
     fi, n = _interval_sums(ti, f_rot, tg[i], tg[j])
     sat = _saturated(w, rate_hz, imu.gyro_range / imu.dt.mean() if (imu.output == "increment" and imu.gyro_range)
