@@ -34,7 +34,8 @@ disagree beyond what their noise explains, an ``error`` naming the likely cause.
   body moving nose first). Statistic: the mean of the unit specific-force vectors of those samples
   in the body frame; its largest component along +y, -y or +z (with the mean vector longer than
   0.5, i.e. a dominant direction) means the sensor axes differ from the body axes: an error asking
-  for ``axes``.
+  for ``axes`` when the import has a GPS (a flight to navigate), a warning for an IMU table alone
+  (a bench recording may lie on any side).
 
 The checks need the IMU and a GPS with velocities (the GPS-velocity check needs only the GPS);
 each reports why it was skipped otherwise.
@@ -328,8 +329,10 @@ _AXES = ("+x", "+y", "+z", "-x", "-y", "-z")
 _ALLOWED = {"+x", "-z", "-x"}
 
 
-def check_body_axes(report, imu) -> None:
-    """Dominant specific-force direction in the body frame (module docstring)."""
+def check_body_axes(report, imu, flight: bool = True) -> None:
+    """Dominant specific-force direction in the body frame (module docstring). ``flight``: the
+    record comes with GPS, i.e. from a vehicle that the filter will navigate; an IMU table alone
+    (a bench or lab recording lying on any side) gets a warning instead of an error."""
     _, f = _imu_rates(imu)
     mag = np.linalg.norm(f, axis=1)
     load = mag > 5.0
@@ -345,7 +348,7 @@ def check_body_axes(report, imu) -> None:
     if L < 0.5 or name in _ALLOWED:
         report.add("info", "imu", "body_axes", stat + ("" if L >= 0.5 else ": no dominant direction"))
         return
-    report.add("error", "imu", "body_axes", f"{stat}: at rest or under load the specific force points along +x "
+    report.add("error" if flight else "warning", "imu", "body_axes", f"{stat}: at rest or under load the specific force points along +x "
                                             "(thrust), -z (ground or lift) or -x (drag) of the body frame (x forward, "
                                             f"y right, z down), not {name}; likely cause: the sensor axes differ "
                                             "from the body axes: set [imu] axes (e.g. axes = [\"+z\", \"-x\", \"-y\"] "
@@ -366,7 +369,7 @@ def cross_check(report, imu, gps, gps_spec=None, rate_hz=None) -> None:
     if imu is None or len(imu.t_ns) <= 2:
         return
     rate = rate_hz or 1.0 / np.median(np.diff(imu.t_ns) / 1e9)
-    check_body_axes(report, imu)
+    check_body_axes(report, imu, flight=gps is not None)
     if gps is not None and gps_ok:
         check_specific_force(report, imu, gps)
         check_gyro_rotation(report, imu, gps, rate)
