@@ -288,3 +288,22 @@ def test_validation_failure_is_one_line_and_force_still_writes(rocket, capsys):
         import_flight(m, d / "x.mcap")
     res = import_flight(m, d / "x.mcap", force=True)
     assert res.report.errors and read_log(d / "x.mcap").complete
+
+
+def test_camera_frames_outside_the_imu_record_refused(rocket, capsys):
+    """Frames stamped with a start in the wrong unit (T+60 000 s, milliseconds declared as seconds)
+    share no time with the IMU: refused naming the camera stream."""
+    d, _ = rocket
+    (d / "cam.toml").write_text("[camera]\nwidth = 64\nheight = 48\nfx = 40.0\nfy = 40.0\ncx = 31.5\n"
+                                "cy = 23.5\nk = [1.0, 0.05]\n")
+    (d / "frames").mkdir(exist_ok=True)
+    import cv2
+    cv2.imwrite(str(d / "frames" / "f0.jpg"), np.zeros((48, 64, 3), np.uint8))
+    m = mapping(d, "cam-map.toml")
+    text = m.read_text() + ('\n[[cameras]]\ncamera_file = "cam.toml"\nmount = { azimuth_deg = 90.0, '
+                            'depression_deg = 20.0 }\n[cameras.footage]\nimages = "frames"\n'
+                            'start_s = START\nrate_hz = 1.0\n')
+    m.write_text(text.replace("START", "60000.0"))
+    _refused(d, m, capsys, "camera_1 overlap: all 1 stamps lie outside the IMU record")
+    m.write_text(text.replace("START", "60.0"))
+    assert not import_flight(m, d / "cam.mcap").report.errors

@@ -306,7 +306,7 @@ def check_footage(report: Report, fp, checks: Checks) -> None:
 
 
 def check_overlap(report: Report, streams: dict) -> None:
-    """GPS / camera stamps outside the IMU's time span."""
+    """GPS / camera stamps outside the IMU's time span: a warning, an error when none is inside."""
     imu = streams.get("imu")
     if imu is None or not len(imu):
         return
@@ -314,7 +314,13 @@ def check_overlap(report: Report, streams: dict) -> None:
         if name == "imu" or not len(t):
             continue
         out = (t < imu[0]) | (t > imu[-1])
-        if out.any():
+        if out.all() and len(imu) > 1:
+            report.add("error", name, "overlap", f"all {len(t)} stamps lie outside the IMU record "
+                                                 f"(T+{(imu[0] - report.liftoff_ns) / 1e9:.3f} to "
+                                                 f"T+{(imu[-1] - report.liftoff_ns) / 1e9:.3f} s; first stamp T+"
+                                                 f"{(t[0] - report.liftoff_ns) / 1e9:.6g} s): check the time base, "
+                                                 "unit and start of this stream")
+        elif out.any():
             report.add("warning", name, "overlap", f"{int(out.sum())} of {len(t)} stamps lie outside the IMU record "
                                                    f"(T+{(imu[0] - report.liftoff_ns) / 1e9:.3f} to "
                                                    f"T+{(imu[-1] - report.liftoff_ns) / 1e9:.3f} s)")
