@@ -180,14 +180,19 @@ def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, 
 class GpsFixes:
     """GPS antenna fixes: a position block ``"gps_pos"`` and, with velocities, a velocity block
     ``"gps_vel"`` per fix (3 rows each, :func:`gps_rows_kernel`; noise the fix's covariances).
-    Input problems: :func:`cov3_problems` of each block."""
+    A fix whose velocity is NaN in all three components is a position-only fix (no velocity
+    block), as is every fix of ``GpsData(v_e=None)``. Input problems: :func:`cov3_problems` of
+    each block."""
     name = "gps"
 
     def __init__(self, gps, lever_b, layout):
         self.t_ns = np.asarray(gps.t_ns, dtype=np.int64)
-        self.has_v = gps.v_e is not None
         self.x = np.ascontiguousarray(gps.x_e, float)
-        self.v = np.ascontiguousarray(gps.v_e, float) if self.has_v else self.x
+        v = None if gps.v_e is None else np.ascontiguousarray(gps.v_e, float)
+        self.with_v = (np.zeros(self.t_ns.size, bool) if v is None
+                       else ~np.all(np.isnan(v.reshape(self.t_ns.size, 3)), axis=1))
+        self.has_v = bool(self.with_v.any())
+        self.v = v if self.has_v else self.x
         self.P_x = np.asarray(gps.P_x, float)
         self.P_v = np.asarray(gps.P_v, float) if self.has_v else None
         self.bad_x = list(cov3_problems(self.x, self.P_x))
@@ -202,13 +207,14 @@ class GpsFixes:
         return 0.0
 
     def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
-        m = 6 if self.has_v else 3
+        has_v = bool(self.with_v[j])
+        m = 6 if has_v else 3
         o = stack.reserve(m)
         f, w, dt_m = at
-        gps_fill_kernel(st.nav, f, w, dt_m, self.lever, self.x[j], self.v[j], self.has_v, self.cols,
+        gps_fill_kernel(st.nav, f, w, dt_m, self.lever, self.x[j], self.v[j], has_v, self.cols,
                         stack.H[o:o + m], stack.s[o:o + m])
         stack.add(t_m, "gps_pos", -1, o, 3, self.P_x[j], self.bad_x[j])
-        if self.has_v:
+        if has_v:
             stack.add(t_m, "gps_vel", -1, o + 3, 3, self.P_v[j], self.bad_v[j])
 
 

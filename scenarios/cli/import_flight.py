@@ -1,14 +1,16 @@
 """``horizon-nav import MAPPING.toml -o logs/FLIGHT.mcap``: build a flight log from real flight data.
 
 Reads the IMU and GPS tables (CSV / Parquet) and camera footage (video or image folder) that the
-mapping file describes (docs/import.md; examples in scenarios/library/import/), converts units,
-time bases and axes, prints a validation report (rates, gaps, saturation, unit plausibility) and
-writes the MCAP log (docs/log-format.md). Errors in the report stop the import (nothing written)
-unless ``--force``; a bad frame found while writing discards the log unless ``--keep-partial``.
+mapping file describes (docs/import.md; examples in scenarios/library/import/), checks the time
+stamps before reading the tables whole, converts units, time bases and axes, prints a validation
+report (rates, gaps, saturation, unit plausibility, physical cross-checks between the sensors)
+and writes the MCAP log (docs/log-format.md). Errors in the report stop the import (nothing
+written; exit code 2 with one error line naming the likely cause) unless ``--force``; ``--check``
+runs every check and writes nothing; a bad frame found while writing discards the log unless
+``--keep-partial``.
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from scenarios.errors import UserError
@@ -26,7 +28,9 @@ def add_arguments(p) -> None:
                    help="on an error while writing (bad frame, short video) keep a partial log instead of nothing")
     p.add_argument("--report", metavar="DIR", default=None, help="also write report.json and report.png into DIR")
     p.add_argument("--force", action="store_true", help="write the log even when the validation report has errors")
-    p.add_argument("--check", action="store_true", help="read and validate only; write no log")
+    p.add_argument("--check", action="store_true",
+                   help="read and validate only (time plausibility, report, cross-checks); write no log; "
+                        "exit code 2 when a check fails")
     p.add_argument("--quiet", action="store_true", help="print only errors and the summary line")
 
 
@@ -41,14 +45,21 @@ def run(args) -> int:
     m = load_mapping(args.mapping)
     if args.check:
         prep = prepare(m)
-        print(prep.report.text())
+        if not args.quiet:
+            print(prep.report.text())
         if args.report:
             save_report(prep.report, Path(args.report), prep.imu, prep.gps, prep.footages)
-        return 1 if prep.report.errors else 0
+        errs = prep.report.errors
+        if errs:
+            raise UserError(f"{m.path}: the checks found {len(errs)} error(s): "
+                            + "; ".join(f"{f.stream} {f.check}: {f.message}" for f in errs))
+        print(f"{m.path}: {m.name}: every check passed; {len(prep.report.warnings)} warning(s)")
+        return 0
     try:
         res = import_flight(m, out, keep_partial=args.keep_partial, force=args.force, report_dir=args.report)
     except ValidationFailed as exc:
-        print(exc.report.text(), file=sys.stderr)
+        if not args.quiet:
+            print(exc.report.text())  # the report on stdout: the error stays one line on stderr
         raise
     if not args.quiet:
         print(res.report.text())

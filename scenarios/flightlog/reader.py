@@ -626,7 +626,14 @@ def _validate_times(rd, topic, t, short: str = "") -> np.ndarray:
 
 def _check_nan(rd, topic, t, fields):
     bad = np.zeros(len(t), bool)
-    for v in fields.values():
+    no_velocity = set()
+    if topic == lf.TOPIC_GPS and isinstance(fields.get("velocity"), np.ndarray):
+        # a position-only fix carries NaN velocity and velocity covariance: no measurement, not bad data
+        if np.isnan(fields["velocity"].reshape(len(t), -1)).all(axis=1).all():
+            no_velocity = {"velocity", "velocity_covariance"}
+    for name, v in fields.items():
+        if name in no_velocity:
+            continue
         if isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.shape[:1] == (len(t),):
             bad |= np.isnan(v.reshape(len(t), -1)).any(axis=1)
         elif isinstance(v, np.ndarray) and v.dtype == object and v.shape == (len(t),):

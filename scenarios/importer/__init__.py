@@ -7,7 +7,10 @@ Modules (one job each):
 * :mod:`.units` -- unit names and SI factors;
 * :mod:`.tables` -- CSV / Parquet reading (pyarrow), time bases, units, axis mapping;
 * :mod:`.footage` -- video files and image folders with a time stamp per frame;
+* :mod:`.plausibility` -- the time stamps' plausibility, probed before any table is read whole;
 * :mod:`.validate` -- the validation report (rates, gaps, saturation, unit plausibility);
+* :mod:`.crosscheck` -- physical cross-checks between the sensors (GPS velocity and position,
+  accelerometer and GPS acceleration, gyro and the rotation of the specific force, body axes);
 * :mod:`.build` -- assembles the MCAP log (``import_flight``);
 * :mod:`.export` -- a log back to CSV + image folders + videos + a mapping file (``export_log``).
 

@@ -30,6 +30,7 @@ from vision.camera import to_opencv
 
 from .footage import Footage, plan_footage
 from .mapping import Mapping, load_mapping
+from .plausibility import check_times
 from .tables import GpsData, ImuData, read_gps, read_imu
 from .validate import Report, validate
 
@@ -74,6 +75,9 @@ def prepare(mapping: Mapping) -> Prepared:
     """Read and convert every input and validate (no log written)."""
     tm = {}
     t = time.perf_counter()
+    check_times(mapping)
+    tm["time_check_s"] = time.perf_counter() - t
+    t = time.perf_counter()
     imu = read_imu(mapping.imu, mapping.liftoff_ns) if mapping.imu else None
     tm["imu_read_s"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -91,14 +95,28 @@ def prepare(mapping: Mapping) -> Prepared:
     rep = validate(imu, gps, [f for *_, f in cams if f is not None], checks=mapping.checks,
                    liftoff_ns=mapping.liftoff_ns,
                    gyro_unit=mapping.imu.gyro.unit if mapping.imu else "rad/s",
-                   accel_unit=mapping.imu.accel.unit if mapping.imu else "m/s^2")
+                   accel_unit=mapping.imu.accel.unit if mapping.imu else "m/s^2", gps_spec=mapping.gps)
     tm["validate_s"] = time.perf_counter() - t
     return Prepared(mapping, imu, gps, cams, rep, tm, masks)
 
 
-def _windows(t0: int, t1: int, window_s: float) -> np.ndarray:
+def _windows(t0: int, t1: int, window_s: float, streams=()):
+    """Window ends from ``t0`` in steps of ``window_s`` up to past ``t1``, skipping the windows in
+    which no stream in ``streams`` (sorted stamp arrays) has a stamp: the loop runs at most once
+    per stamp and once per non-empty window, whatever the time between the first and last stamps."""
     step = int(window_s * 1e9)
-    return np.r_[np.arange(t0 + step, t1 + 1, step, dtype=np.int64), np.int64(t1 + 1)]
+    pos = [0] * len(streams)
+    edge = t0 + step
+    while edge <= t1:
+        yield edge
+        nxt = t1
+        for j, s in enumerate(streams):
+            pos[j] = int(np.searchsorted(s, edge, side="left"))
+            if pos[j] < len(s):
+                nxt = min(nxt, int(s[pos[j]]))
+        # the window holding the next stamp (the current one when it is not empty yet)
+        edge = max(edge + step, t0 + ((nxt - t0) // step + 1) * step)
+    yield t1 + 1
 
 
 def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, window_s: float = 10.0,
@@ -119,6 +137,9 @@ def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, windo
             "description": m.description, "mapping": m.text, "import_report": prep.report.to_json()}
     if imu is not None:
         meta["imu_output"] = imu.output
+        meta["imu_sample"] = "point" if m.imu.imu_sample == "point" else "average"
+    if gps is not None and not gps.has_velocity:
+        meta["gps_velocity"] = "none"
     counts = {"imu": 0, "gps": 0, **{f"camera_{cs.k}": 0 for cs, _, _ in prep.cameras}}
     with LogWriter(output, meta, compression=compression, partial_on_error=keep_partial) as w:
         if prep.cameras:
@@ -132,8 +153,9 @@ def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, windo
         gens = [(cs.k, iter(fp.frames())) for cs, _, fp in prep.cameras if fp is not None]
         nxt = [next(g, None) for _, g in gens]
         lo_i = lo_g = 0
-        edges = _windows(t0, t1, window_s)
-        for e, edge in enumerate(edges.tolist()):
+        streams = [s for s in ([imu.t_ns] if imu else []) + ([gps.t_ns] if gps else [])
+                   + [f.t_ns for f in prep.footages] if len(s)]
+        for edge in _windows(t0, t1, window_s, streams):
             if imu is not None:
                 hi = int(np.searchsorted(imu.t_ns, edge))
                 if hi > lo_i:
@@ -165,7 +187,7 @@ def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, windo
                         counts[f"camera_{k}"] += len(stamps)
             w.advance(edge)
             if progress:
-                progress((e + 1) / len(edges), "write")
+                progress(min(1.0, (edge - t0) / max(t1 + 1 - t0, 1)), "write")
     return counts
 
 

@@ -120,12 +120,13 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
                 'accel = { columns = ["ax", "ay", "az"], unit = "m/s^2" }', 'axes = ["+x", "+y", "+z"]', ""]))
     if log.gps is not None:
         s = log.gps
+        has_v = not np.all(np.isnan(s.velocity))  # position-only fixes carry NaN velocities
         cols = {"t_utc_ns": s.t_ns}
         for i, c in enumerate("xyz"):
             cols[c] = s.position[:, i]
-        for i, c in enumerate("xyz"):
+        for i, c in enumerate("xyz" if has_v else ""):
             cols[f"v{c}"] = s.velocity[:, i]
-        for pre, P in (("pos_cov_", s.position_covariance), ("vel_cov_", s.velocity_covariance)):
+        for pre, P in (("pos_cov_", s.position_covariance),) + ((("vel_cov_", s.velocity_covariance),) if has_v else ()):
             for nm, (i, j) in zip(_UT, _UT_IDX):
                 cols[pre + nm] = P[:, i, j]
         cols["num_satellites"] = s.num_satellites.astype(np.int64)
@@ -135,9 +136,10 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
         sections.append("\n".join([
             "[gps]", 'file = "gps.csv"', _time_line(),
             'position = { frame = "ecef", columns = ["x", "y", "z"], unit = "m" }',
-            'velocity = { frame = "ecef", columns = ["vx", "vy", "vz"], unit = "m/s" }',
+            *(['velocity = { frame = "ecef", columns = ["vx", "vy", "vz"], unit = "m/s" }'] if has_v else []),
             "position_covariance = { columns = [" + ", ".join(f'"pos_cov_{c}"' for c in _UT) + '], unit = "m^2" }',
-            "velocity_covariance = { columns = [" + ", ".join(f'"vel_cov_{c}"' for c in _UT) + '], unit = "(m/s)^2" }',
+            *(["velocity_covariance = { columns = [" + ", ".join(f'"vel_cov_{c}"' for c in _UT)
+               + '], unit = "(m/s)^2" }'] if has_v else []),
             'num_satellites = "num_satellites"', ""]))
     cam_img, cam_vid = [], []
     for k, c in log.cameras.items():

@@ -50,6 +50,11 @@ from scenarios.errors import UserError
 from . import units as U
 
 TIME_BASES = ("iso", "unix", "gps", "gps_week", "mission")
+#: 1-sigma position [m] and velocity [m/s] uncertainty per axis of a receiver class, the defaults
+#: for a GPS table without uncertainty columns: a standalone code receiver (a few metres, 0.1-0.2 m/s
+#: Doppler), with SBAS / differential corrections, RTK (centimetres) and PPP (decimetres)
+RECEIVER_SIGMAS = {"standalone": (5.0, 0.2), "sbas": (2.0, 0.1), "dgps": (1.0, 0.1), "ppp": (0.2, 0.05),
+                   "rtk": (0.05, 0.02)}
 FORMATS = ("csv", "parquet")
 
 
@@ -123,6 +128,7 @@ class ImuSpec:
     dt_unit: str = "s"
     gyro_range: float | None = None  # declared sensor range [rad/s or rad per sample], SI
     accel_range: float | None = None
+    imu_sample: str = "interval"  # "interval" (mean over the preceding interval) or "point" (instantaneous)
 
 
 @dataclass(frozen=True)
@@ -138,6 +144,8 @@ class GpsSpec:
     position_cov: Covariance | None
     velocity_cov: Covariance | None
     num_satellites: str | None = None
+    sigma_default: str = ""  # which uncertainties came from defaults (for the report's warning), "" = none
+    fallback_sigmas: tuple[float, float] = (5.0, 0.2)  # [m], [m/s]: for rows whose uncertainty is missing or zero
 
 
 @dataclass(frozen=True)
@@ -185,6 +193,7 @@ class Checks:
     height_max_m: float = 3_000_000.0
     speed_max_mps: float = 9000.0
     gap_factor: float = 1.5  # a gap is a step > gap_factor x the median step
+    span_max_h: float = 72.0  # a record spans at most this long and starts this close to lift-off
     errors_fatal: bool = True
 
 
@@ -371,7 +380,7 @@ def _triple(ctx, d, where, kind) -> Triple:
 def parse_imu(ctx: _Ctx, d: Any) -> ImuSpec:
     w = "imu"
     d = _table(ctx, d, w, _TABLE_KEYS | {"sample", "gyro", "accel", "axes", "dt_column", "dt_unit",
-                                         "gyro_range", "accel_range"}, {"file", "time", "gyro", "accel"})
+                                         "gyro_range", "accel_range", "imu_sample"}, {"file", "time", "gyro", "accel"})
     table = parse_table(ctx, d, w)
     sample = _str(ctx, d, "sample", w, default="rate", choices=("rate", "increment"))
     inc = sample == "increment"
@@ -384,9 +393,12 @@ def parse_imu(ctx: _Ctx, d: Any) -> ImuSpec:
         raise ctx.err(w, "'dt_column' only applies to sample = 'increment'")
     gr = _num(ctx, d, "gyro_range", w, positive=True)
     ar = _num(ctx, d, "accel_range", w, positive=True)
+    point = _str(ctx, d, "imu_sample", w, default="interval", choices=("interval", "point"))
+    if inc and point == "point":
+        raise ctx.err(w, "imu_sample = 'point' applies to sample = 'rate' (an increment covers its interval)")
     return ImuSpec(table, sample, gyro, accel, parse_axes(ctx, d.get("axes"), f"{w}.axes"),
                    _str(ctx, d, "dt_column", w), U.normalise(dt_unit),
-                   None if gr is None else gr * gyro.factor, None if ar is None else ar * accel.factor)
+                   None if gr is None else gr * gyro.factor, None if ar is None else ar * accel.factor, point)
 
 
 def _cov(ctx, d, where, kind, default_frame) -> Covariance | None:
@@ -418,7 +430,8 @@ def _cov(ctx, d, where, kind, default_frame) -> Covariance | None:
 def parse_gps(ctx: _Ctx, d: Any) -> GpsSpec:
     w = "gps"
     d = _table(ctx, d, w, _TABLE_KEYS | {"position", "velocity", "position_sigma", "position_covariance",
-                                         "velocity_sigma", "velocity_covariance", "num_satellites"},
+                                         "velocity_sigma", "velocity_covariance", "num_satellites",
+                                         "sigma_pos_m", "sigma_vel_mps", "receiver"},
                {"file", "time", "position"})
     table = parse_table(ctx, d, w)
     p = _table(ctx, d["position"], f"{w}.position", {"frame", "columns", "unit", "angle_unit"}, {"frame", "columns"})
@@ -446,7 +459,26 @@ def parse_gps(ctx: _Ctx, d: Any) -> GpsSpec:
               vframe if vframe else default_frame)
     if vc is not None and vcols is None:
         raise ctx.err(w, "a velocity uncertainty is given but no 'velocity' columns")
-    return GpsSpec(table, pframe, pcols, pf, af, vframe, vcols, vf, pc, vc, _str(ctx, d, "num_satellites", w))
+    receiver = _str(ctx, d, "receiver", w, choices=tuple(RECEIVER_SIGMAS))
+    sp, sv = _num(ctx, d, "sigma_pos_m", w, positive=True), _num(ctx, d, "sigma_vel_mps", w, positive=True)
+    if sv is not None and vcols is None:
+        raise ctx.err(w, "'sigma_vel_mps' is given but no 'velocity' columns")
+    rp, rv = RECEIVER_SIGMAS[receiver or "standalone"]
+    used = []
+    if pc is None:
+        pc = Covariance("sigma", (), sp if sp is not None else rp, "ecef", 1.0)  # isotropic: any frame
+        used.append(f"sigma_pos_m = {pc.value:g} m")
+    if vc is None and vcols is not None:
+        vc = Covariance("sigma", (), sv if sv is not None else rv, "ecef", 1.0)
+        used.append(f"sigma_vel_mps = {vc.value:g} m/s")
+    note = ""
+    if used:
+        src = ("the mapping's sigma_pos_m / sigma_vel_mps" if sp is not None or sv is not None else "")
+        src += (" and " if src and receiver else "") + (f"receiver = '{receiver}'" if receiver else "")
+        note = (", ".join(used) + f" ({src or 'the default receiver class standalone'}); the table has no "
+                "uncertainty columns")
+    return GpsSpec(table, pframe, pcols, pf, af, vframe, vcols, vf, pc, vc, _str(ctx, d, "num_satellites", w),
+                   note, (sp if sp is not None else rp, sv if sv is not None else rv))
 
 
 def _start(ctx, d, where, liftoff_ns) -> int | None:

@@ -171,9 +171,14 @@ def _number_to_ns(raw: RawTable, col: str, unit: str) -> np.ndarray:
     if pa.types.is_timestamp(a.type):
         raise UserError(f"{raw.file}: time column {col!r} holds timestamps; use base = 'iso' in its time table")
     k = U.TIME_NS[unit]
+    x = a.to_numpy().astype(np.int64) if pa.types.is_integer(a.type) else floats(raw, col)
+    big = np.abs(x) > 9.2e18 / k  # int64 ns hold +-292 years: beyond, the product would wrap around
+    if big.any():
+        i = int(np.argmax(big))
+        raise UserError(f"{raw.file}: time column {col!r} {raw.row(i)}: {x[i]:.6g} {unit} is beyond the "
+                        "+-292 years that int64 nanoseconds hold: is the time unit right?")
     if pa.types.is_integer(a.type):
-        return a.to_numpy().astype(np.int64) * np.int64(k)
-    x = floats(raw, col)
+        return x * np.int64(k)
     whole = np.floor(x)
     return whole.astype(np.int64) * np.int64(k) + np.round((x - whole) * k).astype(np.int64)
 
@@ -354,8 +359,10 @@ def read_imu(spec: ImuSpec, liftoff_ns: int) -> ImuData:
 
 @dataclass
 class GpsData:
-    """GPS fixes: ``t_ns`` UTC, ``position`` / ``velocity`` (N, 3) ECEF [m], [m/s] (velocity NaN-free;
-    zeros with ``has_velocity`` False when not mapped), covariances (N, 3, 3) (zeros = unknown)."""
+    """GPS fixes: ``t_ns`` UTC, ``position`` / ``velocity`` (N, 3) ECEF [m], [m/s], covariances
+    (N, 3, 3). Position-only fixes (no velocity mapped, ``has_velocity`` False) have NaN velocities
+    and velocity covariances: "no measurement", never a zero velocity known exactly.
+    ``sigma_default``: which uncertainties came from the mapping's defaults ("" = none)."""
     file: Path
     t_ns: np.ndarray
     position: np.ndarray
@@ -367,6 +374,7 @@ class GpsData:
     rows: int
     dropped_rows: int = 0
     order: OrderInfo = field(default_factory=OrderInfo)
+    sigma_default: str = ""
 
 
 def _cov_matrix(raw: RawTable, c: Covariance | None, n: int, R_en: np.ndarray | None, keep) -> np.ndarray:
@@ -408,6 +416,8 @@ def read_gps(spec: GpsSpec, liftoff_ns: int) -> GpsData:
     v = (np.column_stack([floats(raw, c, allow_missing=True) for c in spec.velocity])
          if spec.velocity else np.zeros_like(p))
     keep = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(v), axis=1)
+    if not spec.velocity:
+        v = np.full_like(p, np.nan)
     raw_keep = keep
     t = times_ns(raw, ts, liftoff_ns)[keep]
     p, v = p[keep], v[keep]
@@ -435,11 +445,116 @@ def read_gps(spec: GpsSpec, liftoff_ns: int) -> GpsData:
         if spec.velocity_frame == "ned":
             v = np.einsum("nij,nj->ni", R, v)
     Pp = _cov_matrix(raw, spec.position_cov, n, R, raw_keep)
-    Pv = _cov_matrix(raw, spec.velocity_cov, n, R, raw_keep)
+    Pv = (_cov_matrix(raw, spec.velocity_cov, n, R, raw_keep) if spec.velocity
+          else np.full((n, 3, 3), np.nan))
+    note = spec.sigma_default
+    for P, name, sig, on in ((Pp, "position", spec.fallback_sigmas[0], True),
+                             (Pv, "velocity", spec.fallback_sigmas[1], spec.velocity is not None)):
+        bad = ~_positive_definite(P) if on and n else np.zeros(0, bool)
+        if bad.any():  # a zero or missing uncertainty would make the filter reject the fix (or trust it fully)
+            P[bad] = np.eye(3) * sig * sig
+            note += ("; " if note else "") + (f"{int(bad.sum())} fix(es) with a zero, missing or non-positive "
+                                              f"{name} uncertainty take {sig:g} {'m' if name == 'position' else 'm/s'}")
     ns = (np.nan_to_num(floats(raw, spec.num_satellites, allow_missing=True)[keep]).astype(np.uint16)
           if spec.num_satellites else np.zeros(n, np.uint16))
     idx, info = order_rows(raw, t, spec.table.unsorted, "[gps]", np.flatnonzero(keep))
     if idx is not None:
         t, x, v, Pp, Pv, ns = t[idx], x[idx], v[idx], Pp[idx], Pv[idx], ns[idx]
     return GpsData(spec.table.file, t, x, v, Pp, Pv, ns, spec.velocity is not None, raw.nrows,
-                   int(np.count_nonzero(~keep)), info)
+                   int(np.count_nonzero(~keep)), info, note)
+
+
+def _positive_definite(P: np.ndarray) -> np.ndarray:
+    """Per (3, 3) matrix: finite, symmetric and positive definite (smallest eigenvalue > 0)."""
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    ok &= np.all(np.abs(P - np.swapaxes(P, 1, 2)) <= 1e-9 * np.abs(P).max(axis=(1, 2), initial=0)[:, None, None],
+                 axis=(1, 2))
+    ev = np.linalg.eigvalsh(np.where(ok[:, None, None], P, np.eye(3)))
+    return ok & (ev[:, 0] > 0)
+
+
+# ------------------------------------------------------------------------------------------------
+# time probe: the first and last rows of a table, read without parsing the rest of the file
+PROBE_BYTES = 1 << 20  #: bytes read from each end of a CSV file by :func:`probe_times`
+
+
+def probe_times(spec: TableSpec, columns: list[str]) -> tuple[RawTable, RawTable, int]:
+    """The time ``columns`` of the first and the last rows of a table, as two ``RawTable``, and an
+    estimate of the row count: a CSV is read ``PROBE_BYTES`` from each end (the tail's first, cut
+    line is dropped), a Parquet file its first and last row groups. Memory and time do not depend
+    on the file's size, so the time checks run before anything is allocated for the whole table."""
+    pa, pc, pcsv = _pa()
+    cols = list(dict.fromkeys(c for c in columns if c))
+    names = header(spec)
+    missing = [c for c in cols if c not in names]
+    if missing:
+        raise UserError(f"{spec.file}: missing column(s) {missing}; the file has {names}")
+    if spec.format == "parquet":
+        import pyarrow.parquet as pq
+        try:
+            pf = pq.ParquetFile(spec.file)
+            n, g = pf.metadata.num_rows, pf.num_row_groups
+            head = pf.read_row_group(0, columns=cols) if g else pa.table({c: [] for c in cols})
+            tail = pf.read_row_group(g - 1, columns=cols) if g else head
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for bad files
+            raise UserError(f"{spec.file}: cannot read as Parquet ({exc})") from None
+        return (RawTable(spec.file, "parquet", {c: head.column(c) for c in cols}, head.num_rows),
+                RawTable(spec.file, "parquet", {c: tail.column(c) for c in cols}, tail.num_rows), n)
+    size = spec.file.stat().st_size
+    with open(spec.file, "rb") as fh:
+        first = fh.read(PROBE_BYTES)
+        lines = first.split(b"\n", spec.skip_rows + 1)
+        if len(lines) < spec.skip_rows + 2:
+            raise UserError(f"{spec.file}: no data rows")
+        header_line = lines[spec.skip_rows] + b"\n"
+        body = lines[-1]
+        if size <= 2 * PROBE_BYTES:  # small file: all of it
+            body += fh.read()
+            head_bytes = last = body
+        else:
+            head_bytes = body[:body.rfind(b"\n") + 1]
+            fh.seek(size - PROBE_BYTES)
+            last = fh.read()
+            last = last[last.find(b"\n") + 1:]
+    types = {c: pa.string() for c in cols}
+
+    def parse(b: bytes):
+        import io
+        try:
+            return pcsv.read_csv(io.BytesIO(header_line + b), read_options=pcsv.ReadOptions(use_threads=False),
+                                 parse_options=pcsv.ParseOptions(delimiter=spec.delimiter),
+                                 convert_options=pcsv.ConvertOptions(include_columns=cols, column_types=types))
+        except pa.ArrowInvalid as exc:
+            raise UserError(f"{spec.file}: cannot parse CSV ({exc})") from None
+
+    h, t = parse(head_bytes), parse(last)
+    est = int(round(size / max(len(head_bytes), 1) * h.num_rows)) if h.num_rows else 0
+    return (RawTable(spec.file, "csv", {c: h.column(c) for c in cols}, h.num_rows, spec.skip_rows),
+            RawTable(spec.file, "csv", {c: t.column(c) for c in cols}, t.num_rows, spec.skip_rows), est)
+
+
+def times_s(raw: RawTable, spec: TimeSpec, liftoff_ns: int) -> np.ndarray:
+    """Approximate UTC seconds since the Unix epoch (float64, leap seconds ignored) of every row:
+    the plausibility checks' time, which cannot overflow whatever the numbers and the unit."""
+    pa, _, _ = _pa()
+    if spec.base == "iso":
+        return times_ns(raw, spec, liftoff_ns) / 1e9
+    a = raw.columns[spec.column]
+    if pa.types.is_timestamp(a.type):
+        raise UserError(f"{raw.file}: time column {spec.column!r} holds timestamps; use base = 'iso' in its time table")
+    x = floats(raw, spec.column) * U.TIME[spec.unit] + spec.offset_s
+    if spec.base == "unix":
+        return x
+    if spec.base == "mission":
+        return liftoff_ns / 1e9 + x
+    # GPS time runs ahead of UTC by the leap seconds since 1980: those at the lift-off (exact near it)
+    from nav.timescales import utc_to_gps_ns
+    gps0 = GPS_EPOCH_S - (GPS_EPOCH_S * 1e9 + int(utc_to_gps_ns(liftoff_ns, beyond_table="hold")) - liftoff_ns) / 1e9
+    if spec.base == "gps":
+        return gps0 + x
+    week = (np.full(raw.nrows, spec.week, np.float64) if spec.week is not None
+            else floats(raw, spec.week_column))
+    return gps0 + week * 604800.0 + x
+
+
+GPS_EPOCH_S = 315_964_800.0  #: 1980-01-06T00:00:00Z in Unix seconds

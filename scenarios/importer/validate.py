@@ -251,6 +251,9 @@ def check_gps(report: Report, gps, checks: Checks) -> None:
     st = time_stats(report, "gps", gps.t_ns, checks)
     if st is None:
         return
+    if gps.sigma_default:
+        report.add("warning", "gps", "sigma", f"uncertainties from defaults: {gps.sigma_default}; give "
+                                              "position_sigma / velocity_sigma columns when the receiver logs them")
     if gps.dropped_rows:
         report.add("info", "gps", "no_fix", f"{gps.dropped_rows} row(s) without a position (no fix) dropped")
     if gps.order.sorted:
@@ -303,7 +306,7 @@ def check_footage(report: Report, fp, checks: Checks) -> None:
 
 
 def check_overlap(report: Report, streams: dict) -> None:
-    """GPS / camera stamps outside the IMU's time span."""
+    """GPS / camera stamps outside the IMU's time span: a warning, an error when none is inside."""
     imu = streams.get("imu")
     if imu is None or not len(imu):
         return
@@ -311,7 +314,13 @@ def check_overlap(report: Report, streams: dict) -> None:
         if name == "imu" or not len(t):
             continue
         out = (t < imu[0]) | (t > imu[-1])
-        if out.any():
+        if out.all() and len(imu) > 1:
+            report.add("error", name, "overlap", f"all {len(t)} stamps lie outside the IMU record "
+                                                 f"(T+{(imu[0] - report.liftoff_ns) / 1e9:.3f} to "
+                                                 f"T+{(imu[-1] - report.liftoff_ns) / 1e9:.3f} s; first stamp T+"
+                                                 f"{(t[0] - report.liftoff_ns) / 1e9:.6g} s): check the time base, "
+                                                 "unit and start of this stream")
+        elif out.any():
             report.add("warning", name, "overlap", f"{int(out.sum())} of {len(t)} stamps lie outside the IMU record "
                                                    f"(T+{(imu[0] - report.liftoff_ns) / 1e9:.3f} to "
                                                    f"T+{(imu[-1] - report.liftoff_ns) / 1e9:.3f} s)")
@@ -370,8 +379,10 @@ def save_report(report: Report, out_dir: Path, imu=None, gps=None, footages=()) 
 
 
 def validate(imu=None, gps=None, footages=(), *, checks: Checks = Checks(), liftoff_ns: int = 0,
-             gyro_unit: str = "rad/s", accel_unit: str = "m/s^2") -> Report:
-    """The report of one import (arrays already converted to SI, body / ECEF frames)."""
+             gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", gps_spec=None) -> Report:
+    """The report of one import (arrays already converted to SI, body / ECEF frames), with the
+    physical cross-checks between the sensors (:mod:`.crosscheck`; ``gps_spec``: the mapping's
+    ``[gps]``, to name the likely cause of a failure)."""
     rep = Report(liftoff_ns=int(liftoff_ns))
     streams = {}
     if imu is not None:
@@ -384,4 +395,6 @@ def validate(imu=None, gps=None, footages=(), *, checks: Checks = Checks(), lift
         check_footage(rep, fp, checks)
         streams[f"camera_{fp.k}"] = fp.t_ns
     check_overlap(rep, streams)
+    from .crosscheck import cross_check
+    cross_check(rep, imu, gps, gps_spec, rep.streams["imu"].rate_hz if "imu" in rep.streams else None)
     return rep

@@ -92,3 +92,56 @@ axes = ["+z", "+x", "+y"]
           baseline_name="parse+convert alone (import.rows_per_s), same run", rows=n,
           write_s=res.timings["write_s"],
           notes="import_flight into MCAP (LogWriter dominates)")
+
+
+def test_bench_import_plausibility(tmp_path, bench, is_quick):
+    """``import.plausibility_s``: a fresh ``horizon-nav import`` process refusing a 10-million-row
+    IMU CSV (QUICK: 1 million) whose Unix-millisecond stamps are declared as seconds: wall time of
+    the whole command (interpreter start, imports, the time probe, the one-line error), with the
+    refusal inside the process and the peak RSS of the child as extra fields. Target: 10 s."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from scenarios.errors import UserError
+
+    n = 1_000_000 if is_quick else 10_000_000
+    t_ms = 1_560_392_460_000 + np.arange(n, dtype=np.int64) * 5  # 200 Hz, Unix ms
+    path = tmp_path / "imu.csv"
+    c = pa.array(np.full(n, 0.01))
+    pcsv.write_csv(pa.table({"t": t_ms, "wx": c, "wy": c, "wz": c, "fx": c, "fy": c, "fz": c}), path)
+    mapping = tmp_path / "m.toml"
+    mapping.write_text("""
+liftoff_utc = "2019-06-13T02:21:00Z"
+[imu]
+file = "imu.csv"
+time = { column = "t", base = "unix", unit = "s" }
+gyro = { columns = ["wx", "wy", "wz"], unit = "rad/s" }
+accel = { columns = ["fx", "fy", "fz"], unit = "m/s^2" }
+""")
+    out = tmp_path / "out.mcap"
+    t = time.perf_counter()
+    try:
+        import_flight(mapping, out)
+        raise AssertionError("the wrong time unit was not refused")
+    except UserError as exc:
+        msg = str(exc)
+    t_in = time.perf_counter() - t
+    assert "unit = 'ms' would give" in msg and not out.exists()
+    code = ("import json, resource, subprocess, sys, time\n"
+            "t = time.perf_counter()\n"
+            f"p = subprocess.run([sys.executable, '-m', 'scenarios.cli', 'import', {str(mapping)!r}, '-o', "
+            f"{str(out)!r}], capture_output=True, text=True)\n"
+            "print(json.dumps({'rc': p.returncode, 'err': p.stderr, 'wall': time.perf_counter() - t,\n"
+            "                  'rss_mb': resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))\n")
+    root = Path(__file__).resolve().parents[2]
+    r = json.loads(subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
+                                  check=True).stdout)
+    assert r["rc"] == 2 and r["err"].count("\n") == 1 and not out.exists()
+    mb = path.stat().st_size / 1e6
+    print(f"\n{n} rows ({mb:.0f} MB): refused in {t_in:.3f} s in-process, {r['wall']:.2f} s as a command, "
+          f"peak RSS {r['rss_mb']:.0f} MB: {r['err'].strip()}")
+    bench("import.plausibility_s", r["wall"], "s", baseline=10.0, baseline_name="target 10 s", rows=n,
+          file_mb=mb, in_process_s=t_in, peak_rss_mb=r["rss_mb"],
+          notes="horizon-nav import refusing Unix ms declared as s (time probe before any read)")
