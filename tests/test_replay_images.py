@@ -287,7 +287,12 @@ def test_payload_mask_from_the_log_and_from_a_file(ilog, tmp_path):
 
     from scenarios.sim import render
     from scenarios.replay.inputs import load_inputs
-    from scenarios.replay.pipeline import _payload_masks, replay
+    from functools import partial
+
+    from scenarios.replay.inputs import CLI
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.sight import payload_masks
+    _payload_masks = partial(payload_masks, wording=CLI)     # messages worded as the command line's
     inp = load_inputs(ilog)
     for k, c in inp.cameras.items():
         want = render.payload_mask(c.camera, render.DEFAULT_PAYLOAD_MASK)
