@@ -20,14 +20,6 @@ ROOT = Path(__file__).resolve().parents[1]
 RERUN = str(Path(sys.executable).parent / "rerun")
 
 
-@pytest.fixture(scope="module")
-def ilog(tmp_path_factory):
-    p = tmp_path_factory.mktemp("img") / "i.mcap"
-    subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", "atek", "--duration", "64", "-o", str(p),
-                    "--quiet"], check=True, cwd=ROOT, capture_output=True)
-    return p
-
-
 def test_pool_matches_in_process(ilog):
     """Forked workers reading the frames from the log by index (chunks of 2), the same jobs with the
     JPEG bytes shipped, and the in-process path give identical vectors (each frame's RANSAC is

@@ -23,6 +23,8 @@ TARGETS = ("earth", "sun", "moon")
 #: the command line's flag of each parameter that messages name
 FLAGS = {"t_from": "--from", "t_to": "--to", "cameras": "--cameras", "targets": "--targets", "vision": "--vision",
          "init": "--init", "init_file": "--init-file", "masks": "--mask", "vision_rate_hz": "--vision-rate"}
+#: the Python functions' keyword of a parameter where it differs (the state file is ``init=PATH``)
+KEYWORDS = {"init_file": "init"}
 
 
 @dataclass(frozen=True)
@@ -35,7 +37,7 @@ class Wording:
 
     def name(self, param: str) -> str:
         """The parameter's name: ``t_from`` or ``--from``."""
-        return FLAGS[param] if self.cli else param
+        return FLAGS[param] if self.cli else KEYWORDS.get(param, param)
 
     def set(self, param: str, value) -> str:
         """The parameter set to ``value``: ``vision='images'`` or ``--vision images``."""
