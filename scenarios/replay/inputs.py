@@ -22,7 +22,8 @@ TARGETS = ("earth", "sun", "moon")
 
 #: the command line's flag of each parameter that messages name
 FLAGS = {"t_from": "--from", "t_to": "--to", "cameras": "--cameras", "targets": "--targets", "vision": "--vision",
-         "init": "--init", "init_file": "--init-file", "masks": "--mask", "vision_rate_hz": "--vision-rate"}
+         "init": "--init", "init_file": "--init-file", "masks": "--mask", "vision_rate_hz": "--vision-rate",
+         "rrd_image_rate_hz": "--rrd-image-rate"}
 #: the Python functions' keyword of a parameter where it differs (the state file is ``init=PATH``)
 KEYWORDS = {"init_file": "init"}
 

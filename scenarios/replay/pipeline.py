@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import gc
 import logging
-import math
 import os
 import threading
 import time
@@ -60,7 +59,8 @@ from nav.navigator import VectorData
 from scenarios.errors import UserError
 from scenarios.replay import inputs as I
 from scenarios.replay.inputs import CLI
-from scenarios.replay.steps import Hooks, initialise, navigate, read_flight, see, smooth
+from scenarios.replay.steps import (Hooks, check_rate, check_targets, check_vision, initialise, navigate,
+                                     read_flight, see, smooth)
 
 log = logging.getLogger(__name__)
 NS = 1_000_000_000
@@ -203,15 +203,10 @@ def _small_pages():
 
 def _check_options(opt: ReplayOptions) -> None:
     """The options' values, before anything is read (messages name the command line's flags)."""
-    bad_t = set(opt.targets) - set(I.TARGETS)
-    if bad_t:
-        raise UserError(f"--targets {','.join(sorted(bad_t))}: expected earth, sun or moon")
-    if opt.vision not in ("auto", "images", "vectors"):
-        raise UserError(f"--vision {opt.vision}: expected auto, images or vectors")
-    if opt.vision_rate_hz is not None and not (math.isfinite(opt.vision_rate_hz) and opt.vision_rate_hz > 0):
-        raise UserError(f"--vision-rate {opt.vision_rate_hz}: expected a positive number of frames per second")
-    if opt.rrd_image_rate_hz is not None and not (math.isfinite(opt.rrd_image_rate_hz) and opt.rrd_image_rate_hz > 0):
-        raise UserError(f"--rrd-image-rate {opt.rrd_image_rate_hz}: expected a positive number of frames per second")
+    check_targets(opt.targets, CLI)
+    check_vision(opt.vision, CLI)
+    check_rate(opt.vision_rate_hz, "vision_rate_hz", CLI)
+    check_rate(opt.rrd_image_rate_hz, "rrd_image_rate_hz", CLI)
     if opt.init not in (None, "truth", "given", "triad"):
         raise UserError(f"--init {opt.init}: expected truth, given or triad")
 

@@ -142,8 +142,7 @@ def read_flight(path, *, t_from: str | None = None, t_to: str | None = None, cam
     ([1, 2], 'images')
     """
     w = wording
-    if vision not in ("auto", "images", "vectors"):
-        raise UserError(f"{w.name('vision')} {vision}: expected auto, images or vectors")
+    check_vision(vision, w)
     inp = I.load_inputs(path, t_from=t_from, t_to=t_to, cameras=cameras, need_gps=require_gps, wording=w)
     a, b = inp.t_from, inp.t_to
     imu = I.window_imu(inp.imu, a, b)
@@ -289,10 +288,23 @@ class Sight:
         return f"Sight({src}, {_counts(self.vectors)}{st})"
 
 
-def _check_targets(targets, w: Wording) -> None:
+def check_targets(targets, w: Wording = PYTHON) -> None:
+    """``targets`` are among earth, sun and moon."""
     bad = set(targets) - set(I.TARGETS)
     if bad:
         raise UserError(f"{w.name('targets')} {','.join(sorted(bad))}: expected earth, sun or moon")
+
+
+def check_rate(value, param: str, w: Wording = PYTHON) -> None:
+    """A frame rate ``value`` given as ``param`` is None or a positive number."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UserError(f"{w.name(param)} {value}: expected a positive number of frames per second")
+
+
+def check_vision(vision: str, w: Wording = PYTHON) -> None:
+    """``vision`` names a source of vectors."""
+    if vision not in ("auto", "images", "vectors"):
+        raise UserError(f"{w.name('vision')} {vision}: expected auto, images or vectors")
 
 
 def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int = 0, vision_config=None,
@@ -336,9 +348,8 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
     """
     w = wording
     hooks = hooks or Hooks()
-    _check_targets(targets, w)
-    if vision_rate_hz is not None and not (math.isfinite(vision_rate_hz) and vision_rate_hz > 0):
-        raise UserError(f"{w.name('vision_rate_hz')} {vision_rate_hz}: expected a positive number of frames per second")
+    check_targets(targets, w)
+    check_rate(vision_rate_hz, "vision_rate_hz", w)
     inp = flight.inputs
     if flight.vision == "vectors":
         from scenarios.replay.sight import log_vectors
