@@ -62,12 +62,13 @@ from scenarios.replay.inputs import CLI
 from scenarios.replay.steps import (Hooks, check_rate, check_targets, check_vision, initialise, navigate,
                                      read_flight, see, smooth)
 
-log = logging.getLogger(__name__)
 NS = 1_000_000_000
 
 
 @dataclass
 class ReplayOptions:
+    """The options of ``horizon-nav replay`` (docs/replay.md), one field per flag."""
+
     tuning: str | None = None
     t_from: str | None = None
     t_to: str | None = None
@@ -90,6 +91,9 @@ class ReplayOptions:
 
 @dataclass
 class ReplayResult:
+    """What a replay made: the inputs, the filter's and smoother's results, the vectors and frames,
+    the files written, the stage timings and the notes (:func:`.summary.summarize` reads it)."""
+
     inputs: object
     nav: object
     smooth: object
@@ -218,13 +222,10 @@ def _init_request(opt: ReplayOptions):
     return opt.init or "auto"
 
 
-def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
+def _read(path, opt: ReplayOptions, timings: dict, cpu: dict):
+    """The read stage: the options checked, the log read (:func:`.steps.read_flight`), the tuning
+    loaded. Returns (Flight, Tuning)."""
     from scenarios.config.tuning import load_tuning
-    from scenarios.flightlog.writer import LogWriter
-    from scenarios.replay import solution_log as SL
-
-    timings: dict = {}
-    cpu: dict = {}
     t, c0 = time.perf_counter(), _cpu()
     _check_options(opt)
     flight = read_flight(path, t_from=opt.t_from, t_to=opt.t_to, cameras=opt.cameras, vision=opt.vision,
@@ -238,12 +239,44 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
         raise UserError(str(e)) from None
     timings["read"] = time.perf_counter() - t
     cpu["read"] = _cpu() - c0
+    return flight, tuning
 
-    inp, mode, cam_numbers, a, b = flight.inputs, flight.vision, flight.cam_numbers, flight.t_from, flight.t_to
+
+def _outputs(flight, opt: ReplayOptions, rec):
+    """The solution log's path and metadata, and the recording's path (None without one)."""
+    inp = flight.inputs
     out = Path(opt.output) if opt.output else inp.path.with_name(inp.path.name.removesuffix(".mcap") + ".solution.mcap")
     meta = {"scenario": inp.info.get("scenario", ""), "seed": inp.info.get("seed", ""),
             "liftoff_utc_ns": inp.info.get("liftoff_utc_ns", ""), "kind": "solution", "source_log": str(inp.path),
-            "vision": mode, "window_ns": f"{a},{b}"}
+            "vision": flight.vision, "window_ns": f"{flight.t_from},{flight.t_to}"}
+    rrd = None if rec is None or (opt.spawn and not opt.rrd) else Path(
+        opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
+    return out, meta, rrd
+
+
+def _partial_log(w, stage: str, frames, vectors, res, cam_numbers) -> None:
+    """The solution log closed as a partial log after Ctrl-C during ``stage``, with the vectors
+    that exist then (module docstring)."""
+    from scenarios.replay import solution_log as SL
+    note = ""
+    if stage == "vision":
+        from scenarios.replay.sight import frame_vectors
+        vectors = frame_vectors(frames, cam_numbers)
+        note = "; /camera_<k>/vectors: the frames processed so far (geocentric nadir, attitude prior from the INS)"
+    if stage in ("vision", "init", "filter", "smoother") or (stage == "rerun" and res is None):
+        SL.write_vectors(w, vectors, cam_numbers)
+    w.close(complete=False, reason=f"KeyboardInterrupt during {stage}" + note)
+
+
+def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
+    from scenarios.flightlog.writer import LogWriter
+    from scenarios.replay import solution_log as SL
+
+    timings: dict = {}
+    cpu: dict = {}
+    flight, tuning = _read(path, opt, timings, cpu)
+    inp, mode, cam_numbers = flight.inputs, flight.vision, flight.cam_numbers
+    out, meta, rrd = _outputs(flight, opt, rec)
     prog = _Progress(flight.frame_count(opt.vision_rate_hz), ["init", "filter"] + (["smoother"] if opt.smoother else [])
                      + ["write"] + (["rerun"] if (opt.rrd != "" or opt.spawn) else []), opt.progress, timings, cpu)
     w = LogWriter(out, meta)
@@ -252,8 +285,6 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
     res = sm = None
     warm: list = []      # the filter's warm-up thread
     rerun_parts: dict = {}
-    rrd = None if rec is None or (opt.spawn and not opt.rrd) else Path(
-        opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     gps = flight.gps
     R_bc = flight.mounts
     track = gps.x_e if gps is not None and len(gps.t_ns) else None   # aims the recording's 3D view
@@ -307,15 +338,7 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
         prog.close()
         if rec is not None:
             rec.abandon()
-        stage = prog.current
-        note = ""
-        if stage == "vision":
-            from scenarios.replay.sight import frame_vectors
-            vectors = frame_vectors(frames, cam_numbers)
-            note = "; /camera_<k>/vectors: the frames processed so far (geocentric nadir, attitude prior from the INS)"
-        if stage in ("vision", "init", "filter", "smoother") or (stage == "rerun" and res is None):
-            SL.write_vectors(w, vectors, cam_numbers)
-        w.close(complete=False, reason=f"KeyboardInterrupt during {stage}" + note)
+        _partial_log(w, prog.current, frames, vectors, res, cam_numbers)
         raise
     except BaseException:
         prog.close()
