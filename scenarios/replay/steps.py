@@ -71,7 +71,6 @@ class Flight:
     t_from: int
     t_to: int
     notes: list = field(default_factory=list)
-    vision_rate_hz: float | None = None
 
     @property
     def path(self) -> Path:
