@@ -39,8 +39,8 @@ def hermite(t: np.ndarray, y: np.ndarray, dydt: np.ndarray, tt: np.ndarray):
     """Piecewise cubic Hermite interpolation: the values and derivatives at ``tt`` of the cubics
     through ``(t_i, y_i)`` with slopes ``dydt_i`` (rows), on the interval of each ``tt`` (the end
     intervals beyond the knots). The same curve as ``scipy.interpolate.CubicHermiteSpline``
-    (tests/test_initialise.py); written out because importing scipy.interpolate costs 0.12-0.18 s
-    on every replay's critical path (docs/replay.md), four times what the whole evaluation takes.
+    (tests/test_initialise.py); written out because importing scipy.interpolate would cost several
+    times what the whole evaluation takes, on every replay's critical path (docs/performance.md).
 
     With ``h = t_{i+1} - t_i``, ``s = (tt - t_i) / h`` the Hermite basis gives
     ``y = (1 + 2s)(1 - s)^2 y_i + s(1 - s)^2 h m_i + s^2(3 - 2s) y_{i+1} + s^2(s - 1) h m_{i+1}``.

@@ -126,10 +126,12 @@ def tangent_basis(e) -> np.ndarray:
     return kernel(e)
 
 
-def tangent_bases(e) -> np.ndarray:
-    """:func:`tangent_basis` of every row of ``e`` (N, 3): (N, 3, 2)."""
+def tangent_bases(e, *, unit: bool = False) -> np.ndarray:
+    """:func:`tangent_basis` of every row of ``e`` (N, 3): (N, 3, 2). ``unit``: the rows are unit
+    vectors already and are used as they are (not normalised again)."""
     e = as_vectors(e, "e")
-    e = e / np.linalg.norm(e, axis=-1, keepdims=True)
+    if not unit:
+        e = e / np.linalg.norm(e, axis=-1, keepdims=True)
     a = np.where((np.abs(e[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     t1 = np.cross(e, a)
     t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)

@@ -17,9 +17,9 @@ from scenarios.sim import render
 from vision.camera import atek_camera
 from vision.frontend import FramePrior, default_config, process_frame
 from vision.nadir import nadir_from_horizon
-from vision.oblate import ellipsoid_limb_rays, ellipsoid_model, gaussian_radius, sphere_model
+from vision.oblate import ellipsoid_model, gaussian_radius, sphere_model
 
-from tests.poses import pose
+from tests.poses import ellipsoid_limb_rays, pose
 
 CAM = atek_camera()
 

@@ -53,7 +53,7 @@ def test_unwritable_recording_is_a_clear_error(vlog, tmp_path):
     from scenarios.replay.pipeline import replay
     (tmp_path / "afile").write_text("x")
     out = tmp_path / "u.solution.mcap"
-    with pytest.raises(UserError, match=r"--rrd .*afile.*cannot be written"):
+    with pytest.raises(UserError, match=r"rrd = .*afile.*cannot be written"):
         replay(vlog, _opt(output=str(out), rrd=str(tmp_path / "afile" / "u.rrd")))
     assert not out.exists()
     assert not [p for p in mp.active_children() if p.name == "horizon-nav-rerun"]

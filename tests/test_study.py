@@ -134,7 +134,7 @@ def test_too_many_runs_need_yes(tmp_path):
     st = write_study(tmp_path, runs=50, extra="max_runs = 100",
                      body='[grid]\n"run.report_scale" = [1.0, 0.5, 0.2]\n')
     out = tmp_path / "out"
-    with pytest.raises(UserError, match=r"150 runs .*max_runs = 100.*--yes"):
+    with pytest.raises(UserError, match=r"150 runs .*max_runs = 100.*yes=True"):
         run_study(st, out, workers=0, progress=False)
     assert not out.exists()
 
@@ -154,6 +154,22 @@ def test_cli_reports_bad_study(tmp_path, capsys):
     assert main(["study", str(p), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "bad.toml" in err and "nope" in err and "Traceback" not in err
+
+
+def test_cli_names_its_options(tmp_path, capsys):
+    """The library's messages name its parameters (``yes=True``, ``scheduler = ...``); the command
+    re-words them as its options."""
+    from scenarios.cli import main
+    p = tmp_path / "big.toml"
+    p.write_text(study_text(runs=50, extra="max_runs = 100", body='[grid]\n"run.report_scale" = [1.0, 0.5, 0.2]\n'))
+    assert main(["study", str(p), "-o", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "pass --yes to run it anyway" in err and "yes=True" not in err
+    p = tmp_path / "small.toml"
+    p.write_text(study_text())
+    assert main(["study", str(p), "-o", str(tmp_path / "o2"), "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    err = capsys.readouterr().err
+    assert "--scheduler tcp://127.0.0.1:9: cannot reach" in err
 
 
 # ------------------------------------------------------------------------------------------------

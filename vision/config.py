@@ -224,7 +224,7 @@ class CalibrationOptions(_Checks):
     below : usable fraction [0..1] under which the calibration runs; 0 = off.
     min_points : fewest usable profiles, >= 3.
     sigma_m : covariance term [m]: the spread of ``d_thr`` against the true mean height of the
-        threshold edge (it was 2-7 km low on rendered frames, docs/vision.md); the spread of the
+        threshold edge (it lies 2-7 km low on rendered frames, docs/vision.md); the spread of the
         d_i over sqrt(n) is added.
     """
 

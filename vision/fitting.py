@@ -9,7 +9,7 @@ import math
 import numba
 import numpy as np
 
-from vision._kernels import nb_tangent_basis
+from nav._kernels import tangent_basis as nb_tangent_basis
 from vision.covariance import tangent_basis
 from vision.nadir import ConeFit, angle_residual, conic_type, direction_and_radius, nadir_from_horizon, within_cone
 
@@ -106,8 +106,8 @@ def _triple_radii_kernel(H, idx):
 def refine_local(H: np.ndarray, e0: np.ndarray, c: float, iters: int = 8) -> np.ndarray:
     """Local minimum of |H e - c 1|^2 on |e| = 1 near e0 (Gauss-Newton in the tangent plane), for
     the mirrored-nadir alternative and the limb refits (the global minimum is
-    `constrained_cone_fit`). One numba call (`_refine_kernel`): the numpy loop made ~10 small
-    calls per iteration, up to 8 iterations, 2-4 times per frame."""
+    `constrained_cone_fit`). One numba call (`_refine_kernel`) instead of ~10 small numpy calls
+    per iteration, up to 8 iterations, 2-4 times per frame."""
     e0 = np.asarray(e0, dtype=float)
     return _refine_kernel(np.ascontiguousarray(H, dtype=float), e0 / np.linalg.norm(e0), float(c), iters)
 

@@ -54,7 +54,7 @@ The crossing of ``f max B`` on the space side of the maximum ``u* = ln((1 + c)/c
 (`fraction_height_shift`): exposure, phase function and tau still drop out of the *shift*; only
 H enters. It agrees with the renderer's 1-D limb radiance to < 50 m (tests/test_limb_sun_path.py)
 and with the tangent heights of the fraction-of-peak edge on rendered frames to 0.2-0.7 km for
-Sun elevations of 3..30 deg; below ~3 deg it was 1..7 km low.
+Sun elevations of 3..30 deg; below ~3 deg it lies 1..7 km low.
 
 Sun elevation down the profile (twilight)
 -----------------------------------------
@@ -177,7 +177,7 @@ def _bilinear1(img, ch, x, y):
 def _bilinear_inside(img, ch, x, y):
     """`_bilinear1` for a point whose four neighbours are inside the image and a channel ch >= 0:
     the same products in the same order, without the bounds and channel branches, and int() for
-    floor() (x, y >= 0 here) (~3x faster)."""
+    floor() (x, y >= 0 here), which is cheaper."""
     x0 = int(x)
     y0 = int(y)
     fx = x - x0

@@ -345,7 +345,7 @@ def nadir_from_horizon(rays_c: np.ndarray, alpha: float, method: str = "constrai
     method : "constrained" (default: |e| = 1 enforced, `constrained_cone_fit`, uses alpha) or
         "linear" (003 eq. (24) with unit rays, solved by lstsq; its direction does not depend on
         alpha and it is ill-conditioned on short arcs: with integer-rounded pixels of a 1920x1080
-        94.4 deg fisheye it was off by degrees on 100-400 px arcs where "constrained" stayed
+        94.4 deg fisheye it is off by degrees on 100-400 px arcs where "constrained" stayed
         below 0.02 deg, see tests/test_nadir.py).
 
     Returns

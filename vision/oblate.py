@@ -35,7 +35,7 @@ import numpy as np
 from nav import earth
 from vision.nadir import norm3, horizon_alpha
 
-__all__ = ["LimbModel", "sphere_model", "ellipsoid_model", "gaussian_radius", "ellipsoid_limb_rays"]
+__all__ = ["LimbModel", "sphere_model", "ellipsoid_model", "gaussian_radius"]
 
 
 @dataclass(frozen=True)
@@ -138,25 +138,3 @@ def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0
     M_inv = R.T / s[None, :]      # R_ec^T S^-1
     rate = 1.0 / (xs * math.cos(alpha))
     return LimbModel("ellipsoid", alpha, M, M_inv, float(a), rate)
-
-
-def ellipsoid_limb_rays(x_e: np.ndarray, R_ec: np.ndarray, n: int = 720,
-                        atmosphere_m: float = 0.0) -> np.ndarray:
-    """Exact limb rays (n, 3) in the camera frame of the WGS-84 ellipsoid (+ d) seen from x_e:
-    the circle of tangency in the scaled frame mapped back (an independent construction for the
-    tests: the rays are tangent to the ellipsoid, which the tests verify with
-    `scenarios.sim.render.ray_ellipsoid`)."""
-    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
-    s = np.array([1.0, 1.0, a / b])
-    xs = s * np.asarray(x_e, dtype=float)
-    r = np.linalg.norm(xs)
-    e = -xs / r
-    alpha = math.asin(a / r)
-    u = np.cross(e, [0.0, 0.0, 1.0]) if abs(e[2]) < 0.9 else np.cross(e, [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(e, u)
-    psi = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
-    p_s = math.cos(alpha) * e + math.sin(alpha) * (np.cos(psi)[:, None] * u + np.sin(psi)[:, None] * v)
-    p_e = p_s / s
-    p_e /= np.linalg.norm(p_e, axis=1, keepdims=True)
-    return p_e @ np.asarray(R_ec, dtype=float)  # rows: R_ec^T p_e

@@ -39,8 +39,17 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f"scenarios.cli.{info.name}")
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+        p.set_defaults(_run=module.run, _flags=getattr(module, "FLAGS", {}))
     return parser
+
+
+def flag_names(message: str, flags: dict) -> str:
+    """``message`` with the library's parameter spellings (keys of ``flags``, e.g. ``"force=True"``)
+    replaced by the command's options (``"--force"``): library code names its parameters, the
+    command line its options."""
+    for name, flag in flags.items():
+        message = message.replace(name, flag)
+    return message
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
-        print(f"horizon-nav {args.command}: error: {exc}", file=sys.stderr)
+        print(f"horizon-nav {args.command}: error: {flag_names(str(exc), args._flags)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"horizon-nav {args.command}: interrupted", file=sys.stderr)

@@ -15,6 +15,8 @@ from scenarios.errors import UserError
 
 NAME = "import"
 HELP = "import a real flight (IMU/GPS tables, video or images) into an MCAP log via a TOML mapping file"
+#: the library's parameter spellings in its messages -> this command's options
+FLAGS = {"force=True": "--force", "keep_partial=True": "--keep-partial"}
 
 
 def add_arguments(p) -> None:

@@ -13,6 +13,8 @@ import json
 
 NAME = "study"
 HELP = "filter Monte Carlo studies and parameter sweeps from a study file (Parquet tables + HTML report)"
+#: the library's parameter spellings in its messages -> this command's options
+FLAGS = {"yes=True": "--yes", "scheduler = ": "--scheduler ", "scheduler: a Dask scheduler": "--scheduler"}
 
 
 def add_arguments(p) -> None:

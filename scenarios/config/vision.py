@@ -34,7 +34,7 @@ __all__ = ["DEFAULT_VISION_FILE", "load_vision_config", "vision_config_from_dict
 #: a commented example of a vision configuration file; loading it gives the defaults
 DEFAULT_VISION_FILE = Path(__file__).parent.parent / "library" / "vision" / "default.toml"
 
-#: flat names of the earlier format that are not a tail of their field's path
+#: flat names of the flat (un-nested) file format that are not a tail of their field's path
 _FLAT_NAMES = {"threshold_method": ("detection", "binarize", "method"),
                "threshold_factor": ("detection", "binarize", "factor"),
                "min_length_px": ("detection", "min_length"),

@@ -54,9 +54,8 @@ MAGIC = b"\x89MCAP0\r\n"
 OP_MESSAGE = 0x05
 MESSAGE_PREFIX = 31  # opcode 1 + length 8 + channel 2 + sequence 4 + log_time 8 + publish_time 8
 COMPRESSIONS = ("zstd", "lz4", "")
-#: zstd level of the chunks. Level 1 compresses IMU records ~1.8x faster than level 3 (the ``mcap``
-#: library's default) at the same ratio (measured on 200,000 realistic IMU records, 1 MiB chunks:
-#: 686 vs 377 MB/s, ratio 6.66 vs 6.49).
+#: zstd level of the chunks. Level 1 compresses IMU records markedly faster than level 3 (the
+#: ``mcap`` library's default) at about the same compression ratio (docs/performance.md).
 ZSTD_LEVEL = 1
 
 

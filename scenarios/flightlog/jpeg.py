@@ -1,11 +1,11 @@
 """Decoding the camera frames of a log: JPEG through libjpeg-turbo (`simplejpeg`), other formats
 through OpenCV.
 
-Why not ``cv2.imdecode`` for everything: on the 1920x1080 frames of the logs, OpenCV 5.0's
-``imdecode`` took 7.8-10 ms per frame on this project's 2-core machine against 3.3-3.5 ms for
-``simplejpeg.decode_jpeg`` on the same frames in the same run, with bit-identical pixels (both are
-libjpeg-turbo with the accurate integer DCT and fancy upsampling; checked in
-tests/test_jpeg.py). Decoding is the largest single cost of the replay's vision stage.
+Why not ``cv2.imdecode`` for everything: on the 1920x1080 frames of the logs,
+``simplejpeg.decode_jpeg`` decodes in less than half of OpenCV's ``imdecode`` time with
+bit-identical pixels (both are libjpeg-turbo with the accurate integer DCT and fancy upsampling;
+checked in tests/test_jpeg.py), and decoding is the largest single cost of the replay's vision
+stage (docs/performance.md).
 """
 from __future__ import annotations
 

@@ -227,8 +227,8 @@ def _compressed_image_span(buf, off: int, ln: int) -> tuple[int, int] | None:
     """``(start, length)`` in ``buf`` of the ``data`` bytes of one little-endian CDR
     ``sensor_msgs/CompressedImage`` message at ``buf[off:off + ln]``, or None when it does not
     parse as one. The same bytes as the general decoder (:meth:`ImageStream._decode`,
-    tests/test_log_format.py), read directly: that decoder works on message matrices and costs ~0.17 ms
-    for a single message, once per frame in the vision workers and again for the recording.
+    tests/test_log_format.py), read directly: that decoder works on message matrices, and its set-up cost for a single
+    message would be paid once per frame in the vision workers and again for the recording.
 
     Layout after the 4-byte encapsulation header (0, 1, options), each 4-byte length aligned to 4
     from there: ``stamp`` (int32 sec, uint32 nanosec), ``frame_id`` (length incl. NUL, bytes),
@@ -537,7 +537,7 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
     short = lf.short_name(sname)
     layout = _layout_for(sname, senc, stext, msg_enc)
     if short == "tf2_msgs/TFMessage" or (senc == "ros2msg" and layout is None):
-        _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts)
+        _decode_by_message(log, rd, topic, sname, senc, stext, msg_enc, parts)
         return
     if layout is None:
         rd.warn(f"{path}: topic {topic}: unknown schema {sname!r} (encoding {senc!r}/{msg_enc!r}); skipped")
@@ -695,7 +695,7 @@ def _shape_fields(short: str, vals: dict) -> dict:
     return out
 
 
-def _decode_reference(log, rd, topic, sname, senc, stext, msg_enc, parts):
+def _decode_by_message(log, rd, topic, sname, senc, stext, msg_enc, parts):
     """Decode a channel message by message with mcap_ros2's decoder (tf_static and exotic schemas)."""
     from mcap.records import Schema
     from mcap_ros2.decoder import DecoderFactory

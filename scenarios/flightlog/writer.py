@@ -24,8 +24,8 @@ byte-for-byte against ``mcap_ros2``'s encoder in tests/test_log_format.py); ``tf
 uses ``mcap_ros2``'s encoder. A batch of N messages of one layout becomes one ``(N, 31 + L)`` byte
 matrix of complete MCAP Message records (``Layout.encode_groups`` with the record header in front);
 batches are merged by ``log_time`` and cut into chunks by ``scenarios.flightlog._chunks.ChunkWriter``,
-one compressor call per chunk: no per-message Python work (1 M IMU samples in well under a second
-instead of ~5 s with ``mcap.writer.Writer.add_message``; tests/benchmarks/test_bench_logs.py).
+one compressor call per chunk: no per-message Python work, unlike ``mcap.writer.Writer.add_message``
+(tests/benchmarks/test_bench_logs.py measures the write rate).
 """
 from __future__ import annotations
 
@@ -104,8 +104,8 @@ def _merge_records(batches: list, src: np.ndarray, off: np.ndarray, ln: np.ndarr
 
     Consecutive records taken from one batch at consecutive offsets form a run copied as one slice,
     so the Python work is per run (at most one per record, far fewer when one topic dominates a
-    time span); this replaces a numba gather over a typed list, whose construction alone compiles
-    for ~0.4 s in every new process.
+    time span). A numba gather would need a typed list of the batches, whose construction is
+    compiled anew in every process.
     """
     n = len(src)
     if n == 0:

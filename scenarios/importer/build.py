@@ -187,13 +187,13 @@ def import_flight(mapping: Mapping | str | Path, output: str | Path, *, keep_par
     if errs and m.checks.errors_fatal and not force:
         msg = "; ".join(f"{f.stream} {f.check}: {f.message}" for f in errs)
         raise ValidationFailed(f"{m.path}: validation found {len(errs)} error(s), nothing written "
-                               f"(--force imports anyway): {msg}", prep.report)
+                               f"(force=True imports anyway): {msg}", prep.report)
     t = time.perf_counter()
     try:
         counts = write_log(prep, output, keep_partial=keep_partial, window_s=window_s, progress=progress)
     except UserError as exc:
-        tail = (f" (partial log kept at {output}: --keep-partial)" if keep_partial
-                else " (nothing written; --keep-partial keeps what was imported before the error)")
+        tail = (f" (partial log kept at {output}: keep_partial=True)" if keep_partial
+                else " (nothing written; keep_partial=True keeps what was imported before the error)")
         raise UserError(f"{exc}{tail}") from None
     prep.timings["write_s"] = time.perf_counter() - t
     return ImportResult(output, prep, counts, prep.timings)

@@ -80,10 +80,6 @@ class AxisMap:
     perm: tuple[int, int, int] | None = None
     signs: tuple[float, float, float] | None = None
 
-    @property
-    def is_identity(self) -> bool:
-        return self.perm == (0, 1, 2) and self.signs == (1.0, 1.0, 1.0)
-
 
 @dataclass(frozen=True)
 class Triple:

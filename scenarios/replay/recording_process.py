@@ -1,10 +1,9 @@
 """The replay's Rerun recording made in a process of its own (:mod:`.rerun_view` draws it).
 
-Why a process: the recording costs ~0.9 s of CPU in the demo replay (importing Rerun 0.2-0.3 s,
-the camera images 0.3-0.5 s, then overlays, 3D scene, time series and Rerun's own encoding and
-writing threads) and ~1.3 s in a 30 frames/s video replay. In the replay's process it competed
-with the vision workers for the two cores and ran after the filter; the demo replay took 3.5-3.8 s
-without a recording against 4.1-4.4 s with one. Forked when the replay starts, the process
+Why a process: the recording is a large share of a replay's CPU time (importing Rerun, the camera
+images, then overlays, 3D scene, time series and Rerun's own encoding and writing threads; figures
+in docs/performance.md). In the replay's process it would compete with the vision workers for the
+cores and run after the filter. Forked when the replay starts, the process
 imports Rerun while the replay's process reads the log (one core idle), sends the images while
 that one initialises, and draws the solution while it smooths and writes it.
 
@@ -54,7 +53,7 @@ OVERLAY_BATCH = 256
 
 #: imported by the recording process as soon as it starts, while the replay's process reads the log
 #: (one core idle). pandas: pyarrow imports it on the first conversion of a Python list (Rerun's
-#: blueprint does one), 0.25-0.35 s of CPU that otherwise fell in :func:`.rerun_view.begin`,
+#: blueprint does one), an import that would otherwise fall in :func:`.rerun_view.begin`,
 #: while the vision workers run.
 PRELOADED = ("rerun", "pandas")
 
@@ -81,8 +80,8 @@ def drawn_result(res):
 
 
 class _AcceptedInnovations:
-    """The accepted innovations as columns: the demo's 8000 innovation objects took ~45 ms to
-    pickle and ~40 ms to unpickle, at the end of the replay; columns take ~1 ms. Iterated, it
+    """The accepted innovations as columns: a few arrays pickle far faster than thousands of
+    innovation objects, and this send comes at the end of the replay. Iterated, it
     gives rows with the fields the drawing reads (:func:`.rerun_view._timeseries` draws the
     accepted ones only)."""
 
@@ -224,7 +223,7 @@ class RecordingProcess:
                 temporary_path(rrd).touch()
                 temporary_path(rrd).unlink()
             except OSError as e:
-                raise UserError(f"--rrd {rrd}: the recording cannot be written there ({e})") from None
+                raise UserError(f"rrd = {rrd}: the recording cannot be written there ({e})") from None
         self.rrd = rrd
         self._send("setup", inp if self._local is not None else drawn_inputs(inp), cam_numbers, self.rrd, spawn,
                    track, image_rate_hz)

@@ -300,9 +300,9 @@ _OVERLAY = (("edges", [150, 150, 150], 1.0), ("inliers", [0, 255, 0], 1.5), ("ou
 IMAGE_BATCH_BYTES = 2 ** 30
 
 
-#: Images per column send (one Rerun chunk each, ~1 MB of JPEG). Rerun 0.41 encodes and writes
-#: small chunks much faster than large ones: 1802 video frames (270 MB) took 0.23 s of CPU in
-#: chunks of 8 frames against 1.34 s in one chunk per camera (16: 0.30 s, 32: 0.62 s).
+#: Images per column send (one Rerun chunk each, ~1 MB of JPEG). Rerun encodes and writes small
+#: chunks much faster than large ones; 8 frames per chunk costs the least CPU of the sizes
+#: compared (docs/performance.md).
 IMAGES_PER_SEND = 8
 
 
@@ -355,8 +355,8 @@ def image_sends(inp, frames, cam_numbers):
     time order (the log's order), and each image is a view into the log's decompressed chunk
     (:func:`read_images`), so a group holds a few chunks, freed once its sends are made.
 
-    Read whole, the images of a batch held every chunk of the log at once: 270 MB of fresh memory
-    for the 30 s video, ~66 000 page faults, 0.5-1.2 s of system time in the recording process.
+    Reading a batch's images whole would hold every chunk of the log at once: hundreds of MB of
+    fresh memory for a video log, and the page faults' system time in the recording process.
     """
     fr = sorted((f for f in frames if f.k in cam_numbers), key=lambda f: (f.t_ns, f.k))
     group = IMAGES_PER_SEND * max(1, len({f.k for f in fr}))
@@ -447,8 +447,8 @@ def read_images(inp, frames, cam_numbers) -> dict:
 
 def _blob_batch(blobs):
     """The JPEG bytes (uint8 arrays, at least one) as one Arrow list array, copied once into one
-    buffer: the array ``EncodedImage.columns(blob=list)`` builds blob by blob, ~9x faster for a
-    flight's frames."""
+    buffer, much faster for a flight's frames than the array ``EncodedImage.columns(blob=list)``
+    builds blob by blob."""
     import pyarrow as pa
     from rerun.encodings import BlobBatch
     off = np.zeros(len(blobs) + 1, np.int32)

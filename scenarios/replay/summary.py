@@ -2,7 +2,6 @@
 camera misalignments with 3 sigma, and errors against truth when the log has it."""
 from __future__ import annotations
 
-import math
 from collections import Counter
 
 import numpy as np
@@ -201,4 +200,4 @@ def format_table(s: dict) -> str:
     return "\n".join(L)
 
 
-__all__ = ["summarize", "format_table", "truth_errors", "vector_errors", "attitude_error", "math"]
+__all__ = ["summarize", "format_table", "truth_errors", "vector_errors", "attitude_error"]

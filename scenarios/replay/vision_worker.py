@@ -242,7 +242,7 @@ def _run(jobs, cameras, config, masks, images, workers, chunk_size, out, progres
 def _chunks(jobs: list, size: int, workers: int) -> list:
     """``jobs`` in tasks of ``size`` frames, the last ``2 * workers * size`` frames in tasks of a
     quarter of that: the workers then finish together instead of one waiting for the other's last
-    full task (half a task, ~50 ms for 16 demo frames, on average)."""
+    full task (half a task on average)."""
     tail = min(len(jobs), 2 * workers * size)
     head, small = len(jobs) - tail, max(1, size // 4)
     return ([jobs[i:min(i + size, head)] for i in range(0, head, size)]

@@ -108,11 +108,6 @@ def density(h) -> np.ndarray:
     return np.where(h <= Z_86, rho_low, rho_high)
 
 
-def speed_of_sound(h) -> np.ndarray:
-    """Speed of sound [m/s] up to 86 km (US-1976 eq. (50), gamma = 1.4)."""
-    return np.sqrt(1.4 * R_STAR / M0 * temperature(h))
-
-
 def density_table(step_m: float = 100.0, h_max: float = H_MAX) -> tuple[float, np.ndarray]:
     """(step, log density at 0, step, 2 step, ... h_max) for the truth kernel's linear look-up.
 

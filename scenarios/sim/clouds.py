@@ -26,7 +26,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["FACE_BASES", "cube_map", "detail_tile", "cube_lookup_np"]
+__all__ = ["FACE_BASES", "cube_map", "detail_tile"]
 
 #: (axis, right, up) of the six cube faces, in the Earth-fixed frame (scaled sphere).
 FACE_BASES = np.array([
@@ -154,21 +154,3 @@ def detail_tile(seed: int, size: int = 256, slope: float = 1.6) -> np.ndarray:
     out = d.astype(np.float32)
     out.setflags(write=False)
     return out
-
-
-def cube_lookup_np(cmap: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Nearest-texel lookup of the cube map at unit vectors ``p`` (..., 3) (reference for tests;
-    the shader does the bilinear version of the same indexing)."""
-    p = np.asarray(p, dtype=float)
-    n = cmap.shape[1]
-    a = np.abs(p)
-    major = np.argmax(a, axis=-1)
-    sign = np.take_along_axis(p, major[..., None], axis=-1)[..., 0] >= 0
-    face = 2 * major + (~sign)
-    B = FACE_BASES[face]
-    m = np.einsum("...j,...j->...", p, B[..., 0, :])
-    s = np.einsum("...j,...j->...", p, B[..., 1, :]) / m
-    t = np.einsum("...j,...j->...", p, B[..., 2, :]) / m
-    j = np.clip(((s + 1.0) * 0.5 * n).astype(int), 0, n - 1)
-    i = np.clip(((t + 1.0) * 0.5 * n).astype(int), 0, n - 1)
-    return cmap[face, i, j]

@@ -348,11 +348,11 @@ def scenario_from_dict(doc: dict, where: str = "<scenario>", toml_text: str = ""
         raise UserError(f"{where}: 'cameras' must be an array of tables [[cameras]]")
     kw["cameras"] = [_build(CameraConfig, c, where, f"cameras[{i}]") for i, c in enumerate(cams)]
     sc = Scenario(**kw, source=where, toml_text=toml_text)
-    _check_consistency(sc, where)
+    check_consistency(sc, where)
     return sc
 
 
-def _check_consistency(sc: Scenario, where: str) -> None:
+def check_consistency(sc: Scenario, where: str) -> None:
     """Cross-key checks: event order, sensor rates dividing the truth rate, camera files."""
     sim = sc.simulation
     rates = [("imu.rate_hz", sc.imu.rate_hz), ("gps.rate_hz", sc.gps.rate_hz)]

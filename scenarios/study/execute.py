@@ -44,12 +44,12 @@ METRIC_COLUMNS = ["study", "run_id", "run_index", "variant", "variant_label", "r
 
 
 def check_size(study: Study, yes: bool) -> None:
-    """Refuse a study larger than ``study.max_runs`` unless confirmed (``--yes``)."""
+    """Refuse a study larger than ``study.max_runs`` unless confirmed (``yes``)."""
     n = study.declared_runs or study.n_runs
     if n > study.max_runs and not yes:
         raise UserError(f"{study.path}: the study asks for {n} runs ({n // study.runs} variants x "
                         f"{study.runs} runs), more than study.max_runs = {study.max_runs}; "
-                        f"pass --yes to run it anyway or raise max_runs")
+                        f"pass yes=True to run it anyway or raise max_runs")
     if not study.variants:
         raise UserError(f"{study.path}: {n} runs declared; too many to enumerate (limit {100 * study.max_runs})")
 
@@ -59,11 +59,11 @@ def check_scheduler(address: str, timeout: float = 3.0):
     try:
         from dask.distributed import Client
     except ImportError:
-        raise UserError("--scheduler needs dask[distributed] (pip install 'dask[distributed]')") from None
+        raise UserError("scheduler: a Dask scheduler needs dask[distributed] (pip install 'dask[distributed]')") from None
     try:
         return Client(address, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as e:
-        raise UserError(f"--scheduler {address}: cannot reach the Dask scheduler ({type(e).__name__}: {e})") from None
+        raise UserError(f"scheduler = {address}: cannot reach the Dask scheduler ({type(e).__name__}: {e})") from None
 
 
 # ------------------------------------------------------------------------------------------------

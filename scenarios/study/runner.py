@@ -38,7 +38,7 @@ import numpy as np
 
 from nav.ephemeris import sun_position_e
 from nav.navigator import GpsData, ImuData, InitialState, VectorData, run
-from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix, tangent_bases
 from scenarios.sim import simulate as S
 from scenarios.study.metrics import run_metrics
 from scenarios.study.studyfile import RunConfig, RunSpec
@@ -75,11 +75,6 @@ def cached_truth(sc, t_end: float):
             _TRUTH.pop(next(iter(_TRUTH)))
         _TRUTH[key] = simulate_truth(sc, t_end)
     return _TRUTH[key]
-
-
-def clear_caches() -> None:
-    _TRUTH.clear()
-    _COV.clear()
 
 
 def _nominal_covariances(sc, truth, ci: int, cam_cfg, cam_truth_nominal, cam_model, rc: RunConfig):
@@ -120,12 +115,9 @@ def _add_white(e: np.ndarray, sigma: float, rng) -> np.ndarray:
     noise the filter's ``vector_white`` describes: ``R = sigma^2 I`` projected on the tangent plane)."""
     if sigma <= 0 or e.shape[0] == 0:
         return e
-    a = np.where(np.abs(e[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    t1 = np.cross(e, a)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(e, t1)
+    T = tangent_bases(e, unit=True)
     w = rng.standard_normal((e.shape[0], 2)) * sigma
-    v = e + w[:, :1] * t1 + w[:, 1:] * t2
+    v = e + w[:, :1] * T[:, :, 0] + w[:, 1:] * T[:, :, 1]
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 

@@ -82,7 +82,7 @@ class RunConfig:
         "cached": the predicted covariance of every frame is computed once per scenario variant
         with the nominal camera mounting and re-projected onto each run's true direction (see
         :mod:`scenarios.study.runner`); "exact": :func:`scenarios.sim.truth_vectors.flight_truth_vectors`
-        per run (the true mounting; ~3 s more per atek coast run).
+        per run (the true mounting; slower: the covariance is computed for every run).
     init : str
         "perturbed": the truth at ``t_start_s`` minus an error drawn with the ``init_*`` sigmas;
         "truth": the exact truth.
@@ -307,12 +307,12 @@ def apply_params(base: dict, params: dict, where: str = "<study>") -> dict:
 
 def build_variant(study: Study, variant: Variant, base: dict | None = None) -> dict:
     """Scenario, tuning and run config of one variant, validated (fixed settings, then the variant's)."""
-    from scenarios.sim.scenario import _check_consistency
+    from scenarios.sim.scenario import check_consistency
 
     base = base or load_base(study)
     where = f"{study.path}: variant {variant.label!r}"
     cfg = apply_params(base, {**study.fixed, **variant.params}, where)
-    _check_consistency(cfg["scenario"], where)
+    check_consistency(cfg["scenario"], where)
     cfg["run"].check(where)
     t = cfg["tuning"]
     for name in ("accel_bias", "accel_scale", "accel_misalignment", "gyro_bias", "gyro_scale",

@@ -3,13 +3,13 @@ of the same frame (baseline) and against the OpenCV full-frame path (binarise + 
 
 Proposed location: tests/benchmarks/test_bench_detection.py (uses the `bench` fixture)."""
 import math
-import time
 
 import cv2
 import numpy as np
 
 from vision import mask as vmask
 from vision.binarize import BinarizeConfig, binarize, brightness_gate, brightness_histogram, resolve_threshold
+from tests.benchmarks.timing import median_ms
 from tests.vision_reference import find_borders_reference
 from vision.borders import SearchConfig, find_borders, search_line_spacing
 from vision.candidates import DetectionConfig, detect, split_borders
@@ -32,17 +32,6 @@ def _frame(h=1080, w=1920, seed=0):
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def _median_ms(f, n):
-    for _ in range(3):
-        f()
-    ts = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        f()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(ts))
-
-
 def test_bench_detection(bench, is_quick):
     cv2.setNumThreads(1)
     n = 20 if is_quick else 200
@@ -50,7 +39,7 @@ def test_bench_detection(bench, is_quick):
     h, w = img.shape[:2]
     mask = vmask.from_polygons((h, w), [[(1800, 1079), (1919, 700), (1919, 1079)]])
     ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
-    t_dec = _median_ms(lambda: cv2.imdecode(jpg, cv2.IMREAD_COLOR), max(10, n // 5))
+    t_dec = median_ms(lambda: cv2.imdecode(jpg, cv2.IMREAD_COLOR), max(10, n // 5))
     bench("detection.jpeg_decode_1080p", t_dec, "ms")
     f_px = 960.0 / math.tan(math.radians(47.2))           # ATEK: 1920 px over 94.4 deg
     targets = {
@@ -63,16 +52,16 @@ def test_bench_detection(bench, is_quick):
         bc = cfg.binarize
         hist = brightness_histogram(img, bc.sample_step)
         t = resolve_threshold(img, bc, hist)
-        t_thr = _median_ms(lambda: (brightness_gate(img, bc, brightness_histogram(img, bc.sample_step)),
+        t_thr = median_ms(lambda: (brightness_gate(img, bc, brightness_histogram(img, bc.sample_step)),
                                     resolve_threshold(img, bc, hist)), n)
-        t_seed = _median_ms(lambda: find_borders(img, t, mask, cfg.search, _follow_borders=False), n)
-        t_search = _median_ms(lambda: find_borders(img, t, mask, cfg.search), n)
+        t_seed = median_ms(lambda: find_borders(img, t, mask, cfg.search, _follow_borders=False), n)
+        t_search = median_ms(lambda: find_borders(img, t, mask, cfg.search), n)
         borders = find_borders(img, t, mask, cfg.search)
-        t_split = _median_ms(lambda: split_borders(borders, mask, cfg.min_length), n)
-        t_det = _median_ms(lambda: detect(img, cfg, mask), n)
+        t_split = median_ms(lambda: split_borders(borders, mask, cfg.min_length), n)
+        t_det = median_ms(lambda: detect(img, cfg, mask), n)
         binary = binarize(img, t, mask.mask)
-        t_bin = _median_ms(lambda: binarize(img, t, mask.mask), max(10, n // 5))
-        t_cv = _median_ms(lambda: find_borders_reference(binary, mask, borders.rows), max(10, n // 5))
+        t_bin = median_ms(lambda: binarize(img, t, mask.mask), max(10, n // 5))
+        t_cv = median_ms(lambda: find_borders_reference(binary, mask, borders.rows), max(10, n // 5))
         ref = find_borders_reference(binary, mask, borders.rows)
         assert {frozenset(map(tuple, b.tolist())) for b in borders} == \
             {frozenset(map(tuple, b.tolist())) for b in ref}

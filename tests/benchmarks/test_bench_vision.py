@@ -9,7 +9,7 @@ disturbances; atmosphere, payload and noise kept). Rendered frames are cached un
 $TMPDIR/horizon-nav-bench-vision-<version> (delete it to re-render). QUICK: every 10th second.
 
 Truth per frame: the renderer's e_c_earth (geocentric nadir), e_c_sun, sun_visible; "horizon in
-view" = at least 10 % of the limb (exact WGS-84 + d limb rays, vision.oblate.ellipsoid_limb_rays)
+view" = at least 10 % of the limb (exact WGS-84 + d limb rays, tests.poses.ellipsoid_limb_rays)
 projects into the image outside the payload mask.
 """
 from __future__ import annotations
@@ -29,7 +29,9 @@ from scenarios.config.vision import load_vision_config
 from vision import mask as vmask
 from vision.camera import project
 from vision.frontend import FramePrior, process_frame
-from vision.oblate import ellipsoid_limb_rays
+
+from tests.benchmarks.timing import median_ms
+from tests.poses import ellipsoid_limb_rays
 
 CACHE_VERSION = 2   # 2: twilight Sun path with the erf air mass (scenarios/sim/_render_kernel.py)
 LOOKS = {
@@ -177,20 +179,10 @@ def _speed(bench, fl, recs, cfg, mask, n):
     # front end runs the limb steps (vision.limb) that the accuracy figures above include
     prior = _full_prior(r, r.R_ec)
 
-    def med(f, k):
-        for _ in range(3):
-            f()
-        ts = []
-        for _ in range(k):
-            t0 = time.perf_counter()
-            f()
-            ts.append(time.perf_counter() - t0)
-        return 1e3 * float(np.median(ts))
-
     # the in-run baseline: decoding the same frame with the decoder the replay uses (libjpeg-turbo
     # through simplejpeg); OpenCV's imdecode of it as a second figure
-    t_dec = med(lambda: decode_frame(jpg), max(10, n // 2))
-    t_dec_cv = med(lambda: cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR), max(10, n // 2))
+    t_dec = median_ms(lambda: decode_frame(jpg), max(10, n // 2))
+    t_dec_cv = median_ms(lambda: cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR), max(10, n // 2))
     stages: dict[str, list] = {}
     tot = []
     rng = np.random.default_rng(0)
@@ -208,7 +200,7 @@ def _speed(bench, fl, recs, cfg, mask, n):
     per = []
     for r2, jpg2, _ in _frames("disturbed", range(61, 431, 10), fl, recs):
         img2, prior2 = decode_frame(jpg2), _full_prior(r2, r2.R_ec)
-        per.append(med(lambda: process_frame(img2, cam, cfg, mask=mask, prior=prior2, rng=rng), 5))
+        per.append(median_ms(lambda: process_frame(img2, cam, cfg, mask=mask, prior=prior2, rng=rng), 5))
     bench("vision.jpeg_decode_1080p_ms", t_dec, "ms", baseline=t_dec_cv,
           baseline_name="OpenCV imdecode of the same frame, same run")
     bench("vision.ms_per_frame", t_vis, "ms", baseline=t_dec,
@@ -229,7 +221,7 @@ def _speed(bench, fl, recs, cfg, mask, n):
     res = process_frame(img, cam, cfg, mask=mask, prior=prior, rng=rng)
     te = res.targets["earth"]
     pts = res.targets["earth"].detection.candidates[te.winner].points
-    t_base = med(lambda: conic_nadir_fit(unproject(cam, pts)), n)
+    t_base = median_ms(lambda: conic_nadir_fit(unproject(cam, pts)), n)
     bench("vision.conic_fit_baseline_ms_per_frame", t_base, "ms",
           note="unprojection + general conic fit of the winning Earth edge (all pixels)")
     return t_vis, t_dec
