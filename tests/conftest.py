@@ -30,3 +30,12 @@ def vlog(tmp_path_factory):
     subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", "atek", "--no-images", "--vectors",
                     "--duration", "140", "-o", str(p), "--quiet"], check=True, cwd=ROOT, capture_output=True)
     return p
+
+
+@pytest.fixture(scope="session")
+def ilog(tmp_path_factory):
+    """A short rendered log: atek T+0..T+64, both cameras at 1 Hz from T+60 (10 frames)."""
+    p = tmp_path_factory.mktemp("img") / "i.mcap"
+    subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", "atek", "--duration", "64", "-o", str(p),
+                    "--quiet"], check=True, cwd=ROOT, capture_output=True)
+    return p

@@ -20,14 +20,6 @@ ROOT = Path(__file__).resolve().parents[1]
 RERUN = str(Path(sys.executable).parent / "rerun")
 
 
-@pytest.fixture(scope="module")
-def ilog(tmp_path_factory):
-    p = tmp_path_factory.mktemp("img") / "i.mcap"
-    subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", "atek", "--duration", "64", "-o", str(p),
-                    "--quiet"], check=True, cwd=ROOT, capture_output=True)
-    return p
-
-
 def test_pool_matches_in_process(ilog):
     """Forked workers reading the frames from the log by index (chunks of 2), the same jobs with the
     JPEG bytes shipped, and the in-process path give identical vectors (each frame's RANSAC is
@@ -287,7 +279,12 @@ def test_payload_mask_from_the_log_and_from_a_file(ilog, tmp_path):
 
     from scenarios.sim import render
     from scenarios.replay.inputs import load_inputs
-    from scenarios.replay.pipeline import _payload_masks, replay
+    from functools import partial
+
+    from scenarios.replay.inputs import CLI
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.sight import payload_masks
+    _payload_masks = partial(payload_masks, wording=CLI)     # messages worded as the command line's
     inp = load_inputs(ilog)
     for k, c in inp.cameras.items():
         want = render.payload_mask(c.camera, render.DEFAULT_PAYLOAD_MASK)

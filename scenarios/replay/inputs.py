@@ -6,7 +6,6 @@ that says what is missing and what can still be done with the log.
 """
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +19,38 @@ from scenarios.errors import UserError
 
 NS = 1_000_000_000
 TARGETS = ("earth", "sun", "moon")
+
+#: the command line's flag of each parameter that messages name
+FLAGS = {"t_from": "--from", "t_to": "--to", "cameras": "--cameras", "targets": "--targets", "vision": "--vision",
+         "init": "--init", "init_file": "--init-file", "masks": "--mask", "vision_rate_hz": "--vision-rate",
+         "rrd_image_rate_hz": "--rrd-image-rate"}
+#: the Python functions' keyword of a parameter where it differs (the state file is ``init=PATH``)
+KEYWORDS = {"init_file": "init"}
+
+
+@dataclass(frozen=True)
+class Wording:
+    """How error messages and notes name what the caller chose: the keyword arguments of the
+    Python functions (:data:`PYTHON`: ``t_from``, ``vision='images'``) or the command line's flags
+    (:data:`CLI`: ``--from``, ``--vision images``)."""
+
+    cli: bool = False
+
+    def name(self, param: str) -> str:
+        """The parameter's name: ``t_from`` or ``--from``."""
+        return FLAGS[param] if self.cli else KEYWORDS.get(param, param)
+
+    def set(self, param: str, value) -> str:
+        """The parameter set to ``value``: ``vision='images'`` or ``--vision images``."""
+        return f"{FLAGS[param]} {value}" if self.cli else f"{param}={value!r}"
+
+    def given_state(self) -> str:
+        """How to give the initial state: ``--init given --init-file STATE.toml`` or ``init=PATH``."""
+        return "--init given --init-file STATE.toml" if self.cli else "init=PATH (a state TOML) or init=InitialState(...)"
+
+
+PYTHON = Wording(False)
+CLI = Wording(True)
 
 
 @dataclass
@@ -83,7 +114,8 @@ class ReplayInputs:
 
 
 def parse_time(spec: str | None, liftoff_ns: int | None, what: str) -> int | None:
-    """``T+60`` / ``T+60.5`` (seconds after lift-off) or a UTC ISO time -> int ns."""
+    """``T+60`` / ``T+60.5`` (seconds after lift-off) or a UTC ISO time -> int ns; errors begin
+    with ``what`` (the parameter)."""
     if spec is None:
         return None
     s = str(spec).strip()
@@ -152,9 +184,10 @@ def camera_from_info(info, i: int = 0):
 
 
 def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cameras=None,
-                need_gps: bool = True) -> ReplayInputs:
+                need_gps: bool = True, wording: Wording = PYTHON) -> ReplayInputs:
     """Read the log at ``path`` (see the module docstring). ``cameras``: camera numbers to use
-    (default all); ``t_from``/``t_to``: window (T+ seconds or UTC ISO)."""
+    (default all); ``t_from``/``t_to``: window (T+ seconds or UTC ISO); ``wording``: how errors
+    name these parameters."""
     from scenarios.flightlog.reader import LogWarning, read_log
     p = Path(path)
     if not p.is_file():
@@ -185,8 +218,8 @@ def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cam
                       np.asarray(g.velocity, float), np.asarray(g.velocity_covariance, float))
     elif need_gps:
         raise UserError(f"{p}: no GPS fixes (/gps): the replay needs GPS for the initial position and velocity "
-                        "and to bound the INS drift. What can still be done: replay with `--init given "
-                        "--init-file STATE.toml` (position, velocity and attitude at the start) for a vision/INS "
+                        f"and to bound the INS drift. What can still be done: replay with `{wording.given_state()}` "
+                        "(position, velocity and attitude at the start) for a vision/INS "
                         "solution, or `horizon-nav vision` on the images alone")
     truth = None
     if log.truth is not None and len(log.truth):
@@ -216,19 +249,20 @@ def load_inputs(path, *, t_from: str | None = None, t_to: str | None = None, cam
     if want is not None:
         missing = sorted(want - set(cams))
         if missing:
-            raise UserError(f"--cameras: camera(s) {missing} not in {p} (it has {sorted(log.cameras) or 'none'})")
+            raise UserError(f"{wording.name('cameras')}: camera(s) {missing} not in {p} (it has {sorted(log.cameras) or 'none'})")
     t0, t1 = int(imu.t_ns[0]), int(imu.t_ns[-1])
-    a = parse_time(t_from, liftoff, "--from")
-    b = parse_time(t_to, liftoff, "--to")
+    a = parse_time(t_from, liftoff, wording.name("t_from"))
+    b = parse_time(t_to, liftoff, wording.name("t_to"))
     a = t0 if a is None else a
     b = t1 if b is None else b
     rng = f"{format_utc(t0)} .. {format_utc(t1)}"
     if liftoff is not None:
         rng += f" (T+{(t0 - liftoff) / NS:.1f} .. T+{(t1 - liftoff) / NS:.1f} s)"
+    window = f"{wording.name('t_from')}/{wording.name('t_to')}"
     if b <= a:
-        raise UserError(f"--from/--to: the window is empty (end not after start); the log's IMU covers {rng}")
+        raise UserError(f"{window}: the window is empty (end not after start); the log's IMU covers {rng}")
     if a >= t1 or b <= t0:
-        raise UserError(f"--from/--to: the window lies outside the log; its IMU covers {rng}")
+        raise UserError(f"{window}: the window lies outside the log; its IMU covers {rng}")
     a, b = max(a, t0), min(b, t1)
     return ReplayInputs(p, liftoff, imu, gps, cams, truth, a, b, dict(info), notes)
 
@@ -263,7 +297,7 @@ def angle_deg(a, b) -> np.ndarray:
 
 
 __all__ = ["CameraSetup", "ReplayInputs", "Truth", "load_inputs", "parse_time", "read_multi", "window_imu",
-           "window_gps", "camera_from_info", "TARGETS", "math"]
+           "window_gps", "camera_from_info", "TARGETS", "Wording", "PYTHON", "CLI"]
 
 
 def _payload_mask(path, log, k, camera) -> np.ndarray | None:

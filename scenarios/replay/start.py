@@ -1,0 +1,207 @@
+"""The filter's initial state (003 §7.4): the log's truth, a given state, or TRIAD on the first
+epoch with a horizon and a Sun vector, back-propagated to the start of the window with the INS.
+
+On the image path TRIAD first runs on vectors measured without an attitude prior (the substitute
+sphere of 003 §2.8): their nadir is turned into the geocentric one (003 eq. (39)) with the
+attitude of a first TRIAD and the free-inertial INS (:func:`.vision_worker.geocentric_correction`)
+and TRIAD repeated on the corrected vectors.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nav import ins
+from nav.navigator import InitialState, VectorData
+from nav.rotation import quat_to_matrix
+from scenarios.errors import UserError
+from scenarios.replay.inputs import PYTHON, Wording, parse_time
+
+NS = 1_000_000_000
+#: the initialisation methods a caller names (``None``: TRIAD when the vectors allow it, else truth)
+METHODS = (None, "truth", "given", "triad")
+
+
+@dataclass(repr=False)
+class Start:
+    """The initial state of the filter and how it was found.
+
+    Attributes
+    ----------
+    state : nav.navigator.InitialState
+        Time, position, velocity and attitude at the start of the navigation.
+    method : str
+        ``"truth"`` (the log's /truth/state), ``"given"`` (a state file or an ``InitialState``) or
+        ``"triad"`` (003 §7.4).
+    triad : nav.initialise.TriadInit or None
+        The TRIAD result (epoch, attitude, back-propagation) when ``method`` is ``"triad"``.
+    notes : list of str
+        What the caller should know (e.g. why TRIAD was not possible).
+    request : object
+        The ``init`` argument this start answers (``"auto"``, a method, a path or a state).
+    """
+
+    state: InitialState
+    method: str
+    triad: object = None
+    notes: list = field(default_factory=list)
+    request: object = "auto"
+
+    def __repr__(self) -> str:
+        t = f", TRIAD epoch {self.triad.t_triad_ns}" if self.triad is not None else ""
+        return f"Start({self.method}, t_ns={self.state.t_ns}{t})"
+
+
+def split_request(init) -> tuple:
+    """``init`` of the Python functions -> (method or None, state file or None, InitialState or None):
+    ``"auto"``/None, ``"truth"``, ``"triad"``, a path to a state TOML, or an ``InitialState``."""
+    if isinstance(init, InitialState):
+        return "given", None, init
+    if init is None or init == "auto":
+        return None, None, None
+    if isinstance(init, str) and init in ("truth", "triad", "given"):
+        return init, None, None       # "given" without its file: initial_state says what is missing
+    if isinstance(init, (str, Path)):
+        return "given", str(init), None
+    raise UserError(f"init: expected 'auto', 'truth', 'triad', a state file or an InitialState, got {init!r}")
+
+
+def initial_state(flight, vectors, method, init_file=None, state=None, *, search: bool = False,
+                  wording: Wording = PYTHON) -> Start:
+    """The initial state of ``flight`` (a :class:`.steps.Flight`) by ``method`` (None: TRIAD when
+    ``vectors`` hold an epoch with both a horizon and a Sun vector and the log has GPS, else the
+    truth). ``search``: ``vectors`` come from the image path's search without attitude prior, so
+    their Earth vectors are corrected to the geocentric nadir and TRIAD repeated on them."""
+    inp, imu, gps, mode = flight.inputs, flight.imu, flight.gps, flight.vision
+    R_bc = flight.mounts
+    w = wording
+    notes: list = []
+    tri = None
+    has_pair = vectors is not None and {"hor", "sun"} <= set(np.unique(vectors.target))
+    if method is None:
+        if has_pair and gps is not None:
+            method = "triad"
+        else:
+            method = "truth" if inp.truth is not None else "gps"
+            notes.append("initialisation: no epoch with both a horizon and a Sun vector for TRIAD (003 §7.4); "
+                         + (f"using the log's truth ({w.set('init', 'truth')})" if method == "truth"
+                            else "using the first GPS fix and a level attitude with 180 deg sigma is not "
+                                 f"possible: give {w.given_state()}"))
+            if method == "gps":
+                raise UserError(f"{w.name('init')}: no TRIAD epoch and no truth in the log; give {w.given_state()} "
+                                "(time, q_eb and optionally position_e, velocity_e)")
+    if state is not None:
+        init = state
+    elif method == "truth":
+        if inp.truth is None:
+            raise UserError(f"{w.set('init', 'truth')}: {inp.path} has no /truth/state; use "
+                            + ("--init triad or given" if w.cli else f"init='triad' or {w.given_state()}"))
+        init = _truth_init(inp, imu, w)
+    elif method == "given":
+        if not init_file:
+            raise UserError("--init given: needs --init-file STATE.toml (time, q_eb, position_e, velocity_e)" if w.cli
+                            else "init='given': give the state file's path as init (time, q_eb, position_e, velocity_e)")
+        init = _given_init(init_file, inp, imu, w)
+    else:
+        if not has_pair:
+            raise UserError(f"{w.set('init', 'triad')}: no epoch with both a horizon and a Sun vector"
+                            + (f" (use {w.set('init', 'truth')}: the log has truth)" if inp.truth is not None else
+                               f" (use {w.given_state()})"))
+        if gps is None:
+            raise UserError(f"{w.set('init', 'triad')}: needs GPS position and velocity")
+        init, tri = triad(imu, gps, vectors, R_bc, w)
+    if search and mode == "images" and vectors is not None:
+        vectors = _correct_earth(vectors, imu, init, inp, R_bc)
+        if method == "triad":
+            init, tri = triad(imu, gps, vectors, R_bc, w)
+    return Start(init, method, tri, notes)
+
+
+def triad(imu, gps, vectors, R_bc, wording: Wording = PYTHON):
+    """TRIAD at the first epoch with both vectors after the start, back-propagated to the start
+    (003 §7.4). The back-propagation needs an IMU interval: epochs before the second IMU sample (a
+    frame at the window start) are skipped for the next one. Returns (InitialState, TriadInit)."""
+    from nav.initialise import triad_initialise
+    try:
+        ti = triad_initialise(imu, gps, vectors, R_bc, int(imu.t_ns[0]), not_before_ns=int(imu.t_ns[min(1, imu.t_ns.size - 1)]))
+    except ValueError as e:
+        raise UserError(f"{wording.set('init', 'triad')}: {e}") from None
+    return ti.initial, ti
+
+
+def _given_init(path, inp, imu, w: Wording) -> InitialState:
+    p = Path(path)
+    what = f"{w.name('init_file')} {p}"
+    try:
+        d = tomllib.loads(p.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise UserError(f"{what}: cannot read ({e})") from None
+    try:
+        t = parse_time(str(d["time"]), inp.liftoff_ns, f"{what}: time") if "time" in d else int(imu.t_ns[0])
+        q = np.asarray(d["q_eb"], float)
+    except KeyError as e:
+        raise UserError(f"{what}: missing key {e} (expected time, q_eb [x, y, z, w], and position_e / "
+                        "velocity_e unless the log has GPS)") from None
+    i = int(np.searchsorted(imu.t_ns, t))
+    if i >= imu.t_ns.size - 1:
+        raise UserError(f"{what}: time is after the IMU record")
+    t0 = int(imu.t_ns[i])
+    if "position_e" in d:
+        x, v = np.asarray(d["position_e"], float), np.asarray(d.get("velocity_e", [0, 0, 0]), float)
+    elif inp.gps is not None:
+        from nav.initialise import gps_interpolator
+        x, v = gps_interpolator(inp.gps)(t0)
+    else:
+        raise UserError(f"{what}: no position_e and the log has no GPS")
+    if q.shape != (4,) or not np.isclose(np.linalg.norm(q), 1.0, atol=1e-6):
+        raise UserError(f"{what}: q_eb must be a unit quaternion [x, y, z, w]")
+    return InitialState(t0, x, v, q)
+
+
+def _truth_init(inp, imu, w: Wording) -> InitialState:
+    tr = inp.truth
+    t0 = int(imu.t_ns[0])
+    j = int(np.searchsorted(tr.t_ns, t0))
+    if j >= tr.t_ns.size or tr.t_ns[j] != t0:
+        # start at the first IMU sample that has a truth sample
+        common = np.intersect1d(imu.t_ns, tr.t_ns)
+        if not common.size:
+            raise UserError(f"{w.set('init', 'truth')}: no /truth/state sample at an IMU sample time")
+        t0 = int(common[0])
+        j = int(np.searchsorted(tr.t_ns, t0))
+    return InitialState(t0, tr.x_e[j], tr.v_e[j], tr.q_eb[j])
+
+
+def gps_at(inp, t_ns) -> np.ndarray:
+    """The GPS position interpolated at ``t_ns`` (linear per axis)."""
+    g = inp.gps
+    t = np.asarray(t_ns, float)
+    return np.stack([np.interp(t, g.t_ns.astype(float), g.x_e[:, i]) for i in range(3)], -1)
+
+
+def free_inertial_R_eb(imu, init, t_ns) -> np.ndarray:
+    """Body attitude R_eb (n, 3, 3) at ``t_ns`` from the free-inertial INS started at ``init`` (the
+    IMU sample at or after each time; times before the start get the initial attitude)."""
+    i0 = int(np.searchsorted(imu.t_ns, init.t_ns))
+    ts = (imu.t_ns[i0:] - imu.t_ns[i0]) / NS
+    _, _, Q = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, imu.f_b[i0:], imu.w_b[i0:], sample=imu.sample)
+    j = np.clip(np.searchsorted(imu.t_ns[i0:], np.asarray(t_ns, np.int64)), 0, len(ts) - 1)
+    return quat_to_matrix(Q[j])
+
+
+def _correct_earth(vectors, imu, init, inp, R_bc):
+    """Substitute-sphere -> geocentric nadir with the free-inertial attitude from ``init``."""
+    from scenarios.replay.vision_worker import geocentric_correction
+    m = vectors.target == "hor"
+    if not m.any():
+        return vectors
+    t = vectors.t_ns[m]
+    R_eb = free_inertial_R_eb(imu, init, t)
+    R_bc_a = np.array(R_bc)[vectors.camera[m]]
+    R_ce = np.swapaxes(R_eb @ R_bc_a, -1, -2)
+    e = vectors.e_c.copy()
+    e[m] = geocentric_correction(vectors.e_c[m], gps_at(inp, t), R_ce)
+    return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
