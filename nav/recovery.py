@@ -78,7 +78,7 @@ class Recovery:
         is pending (one for any number of gaps before the next fix)."""
         while self.next_gap <= k_end:
             g = self.next_gap
-            gap_s = (self.t_ns[g] - self.t_ns[g - 1]) / NS
+            gap_s = float(self.t_ns[g] - self.t_ns[g - 1]) / NS
             if self.pending is None:
                 self.pending = {"gap_s": gap_s, "gap_start_ns": int(self.t_ns[g - 1]), "gap_end_ns": int(self.t_ns[g])}
             else:

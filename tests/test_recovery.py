@@ -51,14 +51,19 @@ def gap_run(fi, tuning: Tuning | None = None) -> dict:
     return dict(_outcome(fi, res, keep, T_GAP + GAP_S + 30.0, T_GAP + GAP_S), res=res)
 
 
+def with_and_without(case, fi, what: str):
+    """``case(fi)`` with the default tuning and with recovery off; both outcomes printed."""
+    out, off = case(fi), case(fi, Tuning().with_(recovery=False))
+    print(f"{what}: position error 30 s later {out['pos_err_m']:.2f} m, later GPS blocks accepted "
+          f"{100 * out['accepted']:.1f} % of {out['n_later']}; without recovery {off['pos_err_m']:.2f} m, "
+          f"{100 * off['accepted']:.1f} %; recoveries {out['res'].recoveries}")
+    return out, off
+
+
 def test_gap_recovers(coast, caplog):
     with caplog.at_level(logging.WARNING, logger="nav.navigator"):
-        out = gap_run(coast)
+        out, _ = with_and_without(gap_run, coast, "20 s IMU gap")
     res = out["res"]
-    off = gap_run(coast, Tuning().with_(recovery=False))
-    print(f"20 s IMU gap: position error 30 s after the gap {out['pos_err_m']:.2f} m, later fixes accepted "
-          f"{100 * out['accepted']:.1f} % of {out['n_later']}; without recovery {off['pos_err_m']:.2f} m, "
-          f"{100 * off['accepted']:.1f} %; recoveries {res.recoveries}")
     assert len(res.recoveries) == 1
     t_r, reason, details = res.recoveries[0]
     assert reason == "imu_gap" and abs(details["gap_s"] - GAP_S) < 0.01
@@ -79,12 +84,9 @@ def jump_run(fi, tuning: Tuning | None = None) -> dict:
 
 
 def test_divergence_recovers(coast):
-    out = jump_run(coast)
+    out, off = with_and_without(jump_run, coast, "30 m/s velocity jump")
     res = out["res"]
-    off = jump_run(coast, Tuning().with_(recovery=False))
-    print(f"30 m/s velocity jump: position error 30 s later {out['pos_err_m']:.2f} m, later fixes accepted "
-          f"{100 * out['accepted']:.1f} %; without recovery {off['pos_err_m']:.0f} m, {100 * off['accepted']:.1f} %; "
-          f"recoveries {res.recoveries}")
+    assert off["accepted"] < 0.5   # without recovery: every later fix rejected
     assert [r[1] for r in res.recoveries] == ["divergence"]
     assert res.recoveries[0][2]["gated_fixes"] == Tuning().recovery_gated_fixes
     assert out["pos_err_m"] < 10.0
@@ -161,3 +163,28 @@ def test_gap_in_a_turn_recovers_and_smooths():
     sm = rts_smooth(res)
     j = int(np.searchsorted(sm.idx, i))
     assert np.all(np.isfinite(sm.x_e)) and np.linalg.norm(sm.x_e[j] - X[keep][sm.idx[j]]) < 10.0
+
+
+def test_attitude_divergence_recovers():
+    """The aircraft-like flight started with a 30 deg tilt error (initial sigma 2 deg): the
+    misprojected gravity drives the velocity off, the GPS fixes are gated, the divergence recovery
+    re-initialises position and velocity with a wider attitude sigma, and the GPS then corrects
+    the attitude: under 1 deg 30 s after the start, every later fix accepted."""
+    from nav.navigator import InitialState
+    from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+    from tests.test_alignment import aircraft_flight
+    from tests.test_navigator import attitude_errors
+    imu, gps, X, V, Q = aircraft_flight(1, duration=90.0)
+    q0 = matrix_to_quat(rotvec_to_matrix(np.radians([30.0, 0.0, 0.0])) @ quat_to_matrix(Q[0]))
+    logging.disable(logging.WARNING)
+    try:
+        res = run(imu, InitialState(int(imu.t_ns[0]), X[0], V[0], q0), Tuning(), gps=gps, store_for_smoother=False)
+    finally:
+        logging.disable(logging.NOTSET)
+    i = int(np.searchsorted(res.t_ns, imu.t_ns[0] + 30 * NS))
+    att = np.degrees(np.linalg.norm(attitude_errors(res.q_eb[i], Q[i])))
+    acc = np.mean([inn.accepted for inn in res.innovations if inn.kind.startswith("gps") and inn.t_ns > res.recoveries[0][0]])
+    print(f"30 deg tilt at the start: recoveries {[(r[1], r[2]['gated_fixes']) for r in res.recoveries]}, attitude error "
+          f"at 30 s {att:.2f} deg, later GPS blocks accepted {100 * acc:.1f} %")
+    assert [r[1] for r in res.recoveries] == ["divergence"]
+    assert att < 1.0 and acc > 0.95
