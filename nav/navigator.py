@@ -476,7 +476,7 @@ class _Loop:
         kk = min(k + 1, N - 1) if self.avg else k  # the sample covering (t_k, t_m]
         e0, n0 = e_ptr, len(self.rec.innovations)
         if self.rcv.pending is not None:
-            self.recover(k, kk, e0, None)
+            self.recover(k, kk, e0, True)
         while e_ptr < len(ev) and ev_idx[e_ptr] == k:
             t_m, si, j = ev[e_ptr]
             e_ptr += 1
@@ -486,14 +486,14 @@ class _Loop:
         dx = stack.apply(st, self.rec.innovations, self.rejected, self.t_l[k])
         if stack.triad:
             self.rec.triad_pairs(stack.triad)
-        if self.rcv.watch:
-            self.recover(k, kk, e0, n0)
+        if self.rcv.watch and self.rcv.diverged(self.rec.innovations, n0):
+            self.recover(k, kk, e0, False)
         return e_ptr, dx
 
-    def recover(self, k: int, kk: int, e0: int, n0):
-        """The recovery checks of the epoch at sample k (:class:`nav.recovery.Recovery`): before
-        its measurements (``n0`` None) a pending gap recovery, after them the divergence count
-        over the innovations from ``n0`` on. A re-initialised state is recorded at k."""
+    def recover(self, k: int, kk: int, e0: int, gap: bool):
+        """A re-initialisation at the epoch of sample k (:class:`nav.recovery.Recovery`): before
+        its measurements for a pending gap (``gap``), after them for a divergence. A
+        re-initialised state is recorded at k."""
         e1 = e0
         while e1 < len(self.events) and self.ev_idx[e1] == k:
             e1 += 1
@@ -501,10 +501,7 @@ class _Loop:
 
         def at(t_m):
             return f, w, (t_m - t_k) / NS
-        if n0 is None:
-            done = self.rcv.before(k, t_k, at, evs, self.st)
-        else:
-            done = self.rcv.after(self.rec.innovations[n0:], evs, t_k, at, self.st)
+        done = self.rcv.before(at, evs, self.st) if gap else self.rcv.after(evs, at, self.st)
         if done:
             self.rec.restart(k, self.st)
 

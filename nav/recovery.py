@@ -17,7 +17,8 @@ Re-initialisation keeps the attitude and the sensor and camera estimates (with t
 and correlations) and takes position and velocity from the fix:
 
 * position: the antenna fix minus the lever arm, back to the IMU sample before the stamp
-  (:func:`nav.filter_state.extrapolate` over ``-dt_m``); covariance the fix's ``P_x``;
+  (:func:`nav.filter_state.extrapolate` over ``-dt_m``; a fix more than ``_MAX_DIFF_S`` after
+  its sample, as those inside a gap, is not used); covariance the fix's ``P_x``;
 * velocity: the fix's velocity with its ``P_v`` or, for position-only GPS, the difference with
   the previous usable fix (less than ``_MAX_DIFF_S`` earlier and after the gap) with covariance
   ``(P_x_j + P_x_j-1) / dt^2``; in both cases plus ``recovery_vel_sigma^2`` per axis;
@@ -56,7 +57,8 @@ class Recovery:
     """Watches the epoch loop for gaps and divergence and re-initialises the state (module
     docstring). ``next_gap``: the first IMU sample after the next gap (``N``: none left); the loop
     calls :meth:`passed` when a propagation reaches it, :meth:`before` at each measurement epoch
-    while a gap recovery is pending, and :meth:`after` after each epoch's update."""
+    while a gap recovery is pending, :meth:`diverged` after each epoch's update and :meth:`after`
+    when it is true."""
 
     def __init__(self, ts, t_ns, tuning, sources):
         self.tuning, self.t_ns = tuning, t_ns
@@ -86,7 +88,7 @@ class Recovery:
             self.gi += 1
             self.next_gap = self.gap_ends[self.gi]
 
-    def before(self, k: int, t_k: int, at, evs, st) -> bool:
+    def before(self, at, evs, st) -> bool:
         """At a measurement epoch with a pending gap recovery: re-initialise from the first usable
         GPS fix among ``evs`` (the epoch's events ``(t_ns, source, index)``). ``at(t_m)``: the
         extrapolation arguments ``(f, w, dt_m)`` to a stamp. Returns whether it did."""
@@ -98,11 +100,12 @@ class Recovery:
                 return True
         return False
 
-    def after(self, new_innovations, evs, t_k: int, at, st) -> bool:
-        """After an epoch's update: count the GPS fixes with a gated block and re-initialise after
-        ``recovery_gated_fixes`` in a row. Returns whether it did."""
+    def diverged(self, innovations: list, n0: int) -> bool:
+        """After an epoch's update (its innovations from ``n0`` on): count the GPS fixes with a
+        gated block; whether ``recovery_gated_fixes`` came in a row."""
         gated = accepted = False
-        for inn in new_innovations:
+        for i in range(n0, len(innovations)):
+            inn = innovations[i]
             if inn.camera < 0:
                 gated = gated or inn.reason == _GATE
                 accepted = accepted or inn.accepted
@@ -110,8 +113,11 @@ class Recovery:
             self.n_gated += 1
         elif accepted:
             self.n_gated = 0
-        if self.n_gated < self.tuning.recovery_gated_fixes:
-            return False
+        return self.n_gated >= self.tuning.recovery_gated_fixes
+
+    def after(self, evs, at, st) -> bool:
+        """After :meth:`diverged` said so: re-initialise from the epoch's last usable GPS fix.
+        Returns whether it did."""
         for t_m, si, j in reversed(evs):
             if si == self.gps_si and self._reinitialise(st, j, t_m, at(t_m), "divergence",
                                                        {"gated_fixes": self.n_gated},
@@ -137,7 +143,7 @@ class Recovery:
 
     def _reinitialise(self, st, j: int, t_m: int, at, reason: str, details: dict, att_sigma: float) -> bool:
         g = self.gps
-        if g.bad_x[j] is not None:
+        if g.bad_x[j] is not None or abs(at[2]) > _MAX_DIFF_S:
             return False
         vel = self._velocity(j, t_m)
         if vel is None:
