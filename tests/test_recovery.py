@@ -188,3 +188,14 @@ def test_attitude_divergence_recovers():
           f"at 30 s {att:.2f} deg, later GPS blocks accepted {100 * acc:.1f} %")
     assert [r[1] for r in res.recoveries] == ["divergence"]
     assert att < 1.0 and acc > 0.95
+
+
+def test_recovery_table_in_a_tuning_file(tmp_path):
+    from scenarios.config.tuning import load_tuning
+    p = tmp_path / "t.toml"
+    p.write_text("[recovery]\ngap_s = 3.0\ngated_fixes = 5\n")
+    t = load_tuning(p)
+    assert (t.recovery_gap_s, t.recovery_gated_fixes) == (3.0, 5)
+    p.write_text("[recovery]\ngaps = 3.0\n")
+    with pytest.raises(ValueError, match=r"t\.toml.*\[recovery\].*'gaps'"):
+        load_tuning(p)
