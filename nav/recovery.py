@@ -43,7 +43,7 @@ from nav.schmidt import GATED, REASONS
 log = logging.getLogger("nav.navigator")   # the run's logger: recoveries are part of its report
 
 NS = 1_000_000_000
-_MAX_DIFF_S = 2.0   #: longest interval of two fixes whose difference gives the velocity [s]
+_MAX_DIFF_S = 2.0   #: longest interval [s] between two fixes giving a velocity, or from a fix back to its sample
 _GATE = REASONS[GATED]
 
 
