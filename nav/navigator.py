@@ -486,7 +486,7 @@ class _Loop:
         dx = stack.apply(st, self.rec.innovations, self.rejected, self.t_l[k])
         if stack.triad:
             self.rec.triad_pairs(stack.triad)
-        if self.rcv.watch and self.rcv.diverged(self.rec.innovations, n0):
+        if self.rcv.watch and self.rcv.diverged(self.rejected, self.rec.innovations, n0):
             self.recover(k, kk, e0, False)
         return e_ptr, dx
 

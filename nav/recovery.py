@@ -44,7 +44,7 @@ log = logging.getLogger("nav.navigator")   # the run's logger: recoveries are pa
 
 NS = 1_000_000_000
 _MAX_DIFF_S = 2.0   #: longest interval [s] between two fixes giving a velocity, or from a fix back to its sample
-_GATE = REASONS[GATED]
+_GATED_KEYS = (f"gps_pos_{REASONS[GATED]}", f"gps_vel_{REASONS[GATED]}")   #: reject counts of gated GPS blocks
 
 
 def gap_threshold_s(ts, tuning) -> float:
@@ -73,6 +73,7 @@ class Recovery:
         self.next_gap = self.gap_ends[0]
         self.pending = None
         self.n_gated = 0
+        self.gated_total = 0
         self.watch = self.on and tuning.recovery_gated_fixes > 0
 
     def passed(self, k_end: int) -> None:
@@ -100,20 +101,20 @@ class Recovery:
                 return True
         return False
 
-    def diverged(self, innovations: list, n0: int) -> bool:
-        """After an epoch's update (its innovations from ``n0`` on): count the GPS fixes with a
-        gated block; whether ``recovery_gated_fixes`` came in a row."""
-        gated = accepted = False
-        for i in range(n0, len(innovations)):
-            inn = innovations[i]
-            if inn.camera < 0:
-                gated = gated or inn.reason == _GATE
-                accepted = accepted or inn.accepted
-        if gated:
+    def diverged(self, rejected, innovations: list, n0: int) -> bool:
+        """After an epoch's update: count the GPS fixes with a gated block (the run's reject
+        counts tell whether the epoch added one; its innovations from ``n0`` on, read only while
+        the count is not zero, whether a fix was accepted); whether ``recovery_gated_fixes`` came
+        in a row."""
+        total = rejected.get(_GATED_KEYS[0], 0) + rejected.get(_GATED_KEYS[1], 0)
+        if total != self.gated_total:
+            self.gated_total = total
             self.n_gated += 1
-        elif accepted:
+            return self.n_gated >= self.tuning.recovery_gated_fixes
+        if self.n_gated and any(innovations[i].camera < 0 and innovations[i].accepted
+                                for i in range(n0, len(innovations))):
             self.n_gated = 0
-        return self.n_gated >= self.tuning.recovery_gated_fixes
+        return False
 
     def after(self, evs, at, st) -> bool:
         """After :meth:`diverged` said so: re-initialise from the epoch's last usable GPS fix.
