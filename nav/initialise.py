@@ -1,4 +1,7 @@
-"""Initial attitude from TRIAD, back-propagated with the gyros (003 §7.4).
+"""Initial attitude: TRIAD back-propagated with the gyros (003 §7.4), in-motion alignment from
+GPS and the IMU, a rocket's launcher, or roll / pitch / heading.
+
+TRIAD (:func:`triad_initialise`).
 
 003 initialises the coast at T+60 s although the first epoch with both an Earth-nadir and a Sun
 vector is T+171 s (the gyros saturated during the spinning ascent, so the attitude cannot be
@@ -8,6 +11,16 @@ back-propagated to the start by integrating the gyro samples backwards with RK4
 Hermite interpolation of the fixes, which uses the fixes' velocities). The initial attitude
 covariance is 2 deg (1 sigma) per axis as in 003 §7.4, covering the TRIAD error and the
 back-propagation drift.
+
+Without camera vectors (every function pure; the attitude error covariance ``P_psi`` is that of
+the filter's psi in e, ``R_true = exp([psi x]) R_est``):
+
+* :func:`euler_to_q_eb` / :func:`q_eb_to_euler`: roll, pitch, heading in the local NED frame
+  (z-y-x: heading about down, pitch, roll about the body x; docs/conventions.md) at a position;
+* :func:`launcher_alignment`: a rocket on the rail, body x along the rail from its azimuth and
+  elevation, roll given or from the accelerometer at rest;
+* :func:`in_motion_alignment` / :func:`aligned_initial_state`: the in-motion (optimisation-based)
+  coarse alignment over a window of GPS and IMU data (Wahba's problem, below).
 """
 from __future__ import annotations
 
@@ -17,10 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav import ins
+from nav.earth import OMEGA_E, OMEGA_IE_E, R_en, ecef_to_geodetic, gravitation_e, gravity_e
 from nav.ephemeris import sun_position_e
 from nav.measurements import target_direction_e
 from nav.navigator import NS, GpsData, ImuData, InitialState, VectorData
-from nav.rotation import matrix_to_quat, triad
+from nav.rotation import matrix_to_quat, quat_to_matrix, triad
 
 #: 003 §7.4: initial attitude uncertainty per axis (1 sigma).
 INIT_ATT_SIGMA = math.radians(2.0)
@@ -160,3 +174,189 @@ def triad_initialise(imu: ImuData, gps: GpsData, vectors: VectorData, R_bc, t_st
     x0, v0 = at(t_imu[i0])
     init = InitialState(int(t_imu[i0]), x0, v0, Q[0])
     return TriadInit(init, t_tri, q_tri, (int(vectors.camera[ih]), int(vectors.camera[isun])), INIT_ATT_SIGMA)
+
+
+@dataclass
+class Alignment:
+    """An attitude from an alignment: ``q_eb`` (body to e, scalar last) at ``t_ns`` and the 3x3
+    covariance ``P_psi`` [rad^2] of its error psi in e (the filter's attitude error)."""
+    t_ns: int | None
+    q_eb: np.ndarray
+    P_psi: np.ndarray
+    method: str
+
+    @property
+    def att_sigma(self) -> float:
+        """The largest 1-sigma attitude error over all axes [rad]."""
+        return float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (self.P_psi + self.P_psi.T)).max(), 0.0)))
+
+
+def _R_nb(roll, pitch, heading):
+    """z-y-x rotation from body to NED [rad]: ``Rz(heading) Ry(pitch) Rx(roll)``."""
+    cr, sr, cp, sp, ch, sh = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(heading), np.sin(heading)
+    return np.array([[ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
+                     [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _R_en_at(x_e):
+    lat, lon, _ = ecef_to_geodetic(np.asarray(x_e, float))
+    return R_en(lat, lon)
+
+
+def euler_to_q_eb(roll_deg: float, pitch_deg: float, heading_deg: float, x_e) -> np.ndarray:
+    """q_eb (scalar last) of a body with roll, pitch and heading [deg] in the NED frame at ``x_e``
+    (ECEF [m]; geodetic latitude and longitude from it): ``R_eb = R_en Rz(heading) Ry(pitch) Rx(roll)``."""
+    r, p, h = np.radians([roll_deg, pitch_deg, heading_deg])
+    return matrix_to_quat(_R_en_at(x_e) @ _R_nb(r, p, h))
+
+
+def q_eb_to_euler(q_eb, x_e) -> tuple[float, float, float]:
+    """Roll, pitch, heading [deg] in NED at ``x_e`` of the attitude ``q_eb`` (inverse of
+    :func:`euler_to_q_eb`; heading in [0, 360))."""
+    R = _R_en_at(x_e).T @ quat_to_matrix(q_eb)
+    roll = math.degrees(math.atan2(R[2, 1], R[2, 2]))
+    pitch = math.degrees(math.asin(float(np.clip(-R[2, 0], -1.0, 1.0))))
+    heading = math.degrees(math.atan2(R[1, 0], R[0, 0])) % 360.0
+    return roll, pitch, heading
+
+
+def launcher_alignment(azimuth_deg: float, elevation_deg: float, x_e, *, roll_deg: float | None = None,
+                       f_b=None, t_ns: int | None = None, rail_sigma_deg: float = 0.1,
+                       roll_sigma_deg: float = 2.0, accel_sigma: float = 2e-3 * 9.80665) -> Alignment:
+    """Attitude of a rocket on its launcher: body x along the rail (``azimuth_deg`` from north,
+    ``elevation_deg`` above the horizon, at ``x_e``), the roll about it either given (``roll_deg``,
+    the z-y-x roll of heading = azimuth, pitch = elevation) or from the accelerometer at rest:
+    ``f_b`` (3,) or (N, 3), averaged, matched against ``-gravity`` by TRIAD with the rail axis as
+    the exact (primary) vector.
+
+    Covariance (in b, then rotated into e): ``rail_sigma_deg`` about the two axes across the rail;
+    about the rail ``roll_sigma_deg`` for a given roll, else the accelerometer error
+    ``accel_sigma`` [m/s^2] (default a 2 mg bias) over the part of gravity across the rail,
+    ``accel_sigma / (g sin(angle of rail and vertical))`` (a vertical rail leaves roll unobservable:
+    TRIAD raises below 1 deg).
+    """
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    R_en_ = _R_en_at(x_e)
+    if roll_deg is not None:
+        R_eb = R_en_ @ _R_nb(math.radians(roll_deg), el, az)
+        s_roll = math.radians(roll_sigma_deg)
+        method = "launcher"
+    elif f_b is not None:
+        f = np.asarray(f_b, float).reshape(-1, 3).mean(axis=0)
+        rail_e = R_en_ @ np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), -math.sin(el)])
+        g_e = gravity_e(np.asarray(x_e, float))
+        R_eb = triad(np.array([1.0, 0.0, 0.0]), f, rail_e, -g_e)
+        across = np.linalg.norm(np.cross(rail_e, g_e))
+        s_roll = accel_sigma / across
+        method = "launcher+accelerometer"
+    else:
+        raise ValueError("launcher_alignment: give roll_deg or the accelerometer samples f_b at rest")
+    s_rail = math.radians(rail_sigma_deg)
+    P_b = np.diag([s_roll ** 2, s_rail ** 2, s_rail ** 2])
+    return Alignment(t_ns, matrix_to_quat(R_eb), R_eb @ P_b @ R_eb.T, method)
+
+
+def _Rz(theta):
+    """(N, 3, 3) rotations by ``theta`` about z (the Earth's rotation over ``theta / OMEGA_E``)."""
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros((np.size(theta), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+def _body_integral(imu: ImuData, i0: int, i1: int, x0):
+    """Times [s from sample i0] and ``alpha(t) = int C(tau) f_b dtau`` at the IMU samples i0..i1,
+    ``C = R_b0b`` the body attitude against its own at i0 in inertial space (from the gyros:
+    :func:`nav.ins.propagate` from the identity gives ``R_eb = Rz(-W t) C``)."""
+    sl = slice(i0, i1 + 1)
+    t = (np.asarray(imu.t_ns[sl], np.int64) - int(imu.t_ns[i0])) / NS
+    f = np.asarray(imu.f_b[sl], float)
+    sample = getattr(imu, "sample", "average")
+    _, _, Q = ins.propagate(x0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]), t, f, imu.w_b[sl], sample=sample)
+    C = _Rz(OMEGA_E * t) @ quat_to_matrix(Q)
+    dt = np.diff(t)[:, None]
+    if sample == "average":   # sample k is the mean over (t_k-1, t_k]
+        inc = np.einsum("nij,nj->ni", 0.5 * (C[:-1] + C[1:]), f[1:]) * dt
+    else:
+        Cf = np.einsum("nij,nj->ni", C, f)
+        inc = 0.5 * (Cf[:-1] + Cf[1:]) * dt
+    return t, np.concatenate([np.zeros((1, 3)), np.cumsum(inc, axis=0)])
+
+
+def _inertial_integral(tj, xj, vj, x0, v0):
+    """``beta(t_j) = pdot(t_j) - pdot(0) - int G dt`` in the inertial frame equal to e at time 0
+    (``pdot = Rz(W t) (v_e + W x x_e)``, G the gravitation, trapezoid over the fixes)."""
+    R = _Rz(OMEGA_E * tj)
+    pdot = np.einsum("nij,nj->ni", R, vj + np.cross(OMEGA_IE_E, xj))
+    pdot0 = v0 + np.cross(OMEGA_IE_E, x0)
+    G = np.concatenate([gravitation_e(x0)[None], np.einsum("nij,nj->ni", R, gravitation_e(xj))])
+    tt = np.concatenate([[0.0], tj])
+    intG = np.cumsum(0.5 * (G[:-1] + G[1:]) * np.diff(tt)[:, None], axis=0)
+    return pdot - pdot0 - intG
+
+
+def in_motion_alignment(imu: ImuData, gps: GpsData, t_start_ns: int, *, window_s: float = 60.0) -> Alignment:
+    """In-motion coarse alignment: the attitude at ``t_start_ns`` (snapped to the IMU sample at or
+    after it) from GPS position and velocity and the IMU over the following ``window_s`` seconds.
+
+    With the inertial frame equal to e at the start and ``C(t)`` the body's rotation since the start
+    from the gyros, the specific force integrates to the GPS velocity change:
+    ``R_eb(t0) alpha(t) = beta(t)``, ``alpha = int C f_b dt`` (IMU), ``beta`` = the inertial velocity
+    change minus the integrated gravitation (GPS; :func:`_inertial_integral`). Gravity alone fixes
+    the level; the heading comes from the horizontal velocity changes (turns, speed changes, a
+    gravity turn). ``R_eb(t0)`` is the solution of Wahba's problem over every fix in the window,
+    by SVD (Markley 1988; the same minimiser as Davenport's q-method).
+
+    The covariance is the least-squares one, ``s^2 (sum |b|^2 I - b b^T)^-1`` with ``s^2`` the
+    residual variance, times the number of fixes (the residuals of integrated quantities are
+    correlated over the window, so the fixes are not independent). A window without a change of
+    direction (straight, unaccelerated flight) leaves the heading unobservable: ``att_sigma`` is then
+    large and the caller should not use the result. The GPS lever arm is neglected (its velocity
+    ``omega x l`` is small against the velocity changes). The IMU samples must be unsaturated.
+    """
+    t_imu = np.asarray(imu.t_ns, np.int64)
+    i0 = int(np.searchsorted(t_imu, t_start_ns, side="left"))
+    i1 = int(np.searchsorted(t_imu, t_imu[min(i0, t_imu.size - 1)] + int(window_s * NS), side="right")) - 1
+    if i0 >= t_imu.size or i1 <= i0:
+        raise ValueError("t_start_ns: no IMU samples in the alignment window")
+    at = gps_interpolator(gps)
+    x0, v0 = at(t_imu[i0])
+    g_t = np.asarray(gps.t_ns, np.int64)
+    use = (g_t > t_imu[i0]) & (g_t <= t_imu[i1]) & np.all(np.isfinite(gps.v_e), axis=1) & np.all(np.isfinite(gps.x_e), axis=1)
+    if use.sum() < 3:
+        raise ValueError("gps: fewer than 3 fixes with velocity in the alignment window")
+    tj = (g_t[use] - t_imu[i0]) / NS
+    beta = _inertial_integral(tj, np.asarray(gps.x_e, float)[use], np.asarray(gps.v_e, float)[use], x0, v0)
+    t, a = _body_integral(imu, i0, i1, x0)
+    alpha = np.stack([np.interp(tj, t, a[:, i]) for i in range(3)], axis=1)
+    U, _, Vt = np.linalg.svd(beta.T @ alpha)
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U) * np.linalg.det(Vt)]) @ Vt
+    res = beta - alpha @ R.T
+    n = tj.size
+    s2 = float(np.sum(res * res)) / max(3 * n - 3, 1)
+    info = np.sum(beta * beta) * np.eye(3) - beta.T @ beta
+    P = s2 * n * np.linalg.pinv(info)
+    return Alignment(int(t_imu[i0]), matrix_to_quat(R), 0.5 * (P + P.T), "in-motion")
+
+
+def aligned_initial_state(imu: ImuData, gps: GpsData, t_start_ns: int, *, window_s: float = 60.0,
+                          at_end: bool = False) -> tuple[InitialState, Alignment]:
+    """An :class:`nav.navigator.InitialState` without a given attitude: :func:`in_motion_alignment`
+    over ``window_s`` from ``t_start_ns``, position and velocity from GPS (:func:`gps_interpolator`).
+    ``at_end``: the state at the window's last IMU sample instead, the attitude carried there by
+    the INS (:func:`nav.ins.propagate`; its drift over the window is not added to ``P_psi``)."""
+    al = in_motion_alignment(imu, gps, t_start_ns, window_s=window_s)
+    at = gps_interpolator(gps)
+    x0, v0 = at(al.t_ns)
+    if not at_end:
+        return InitialState(al.t_ns, x0, v0, al.q_eb), al
+    t_imu = np.asarray(imu.t_ns, np.int64)
+    i0 = int(np.searchsorted(t_imu, al.t_ns))
+    i1 = int(np.searchsorted(t_imu, al.t_ns + int(window_s * NS), side="right")) - 1
+    sl = slice(i0, i1 + 1)
+    _, _, Q = ins.propagate(x0, v0, al.q_eb, (t_imu[sl] - t_imu[i0]) / NS, imu.f_b[sl], imu.w_b[sl],
+                            sample=getattr(imu, "sample", "average"))
+    x1, v1 = at(t_imu[i1])
+    end = Alignment(int(t_imu[i1]), Q[-1], al.P_psi, "in-motion, carried by the INS")
+    return InitialState(int(t_imu[i1]), x1, v1, Q[-1]), end

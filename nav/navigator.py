@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -64,6 +64,7 @@ from nav import ins
 from nav.error_state import BlockTransition, StateLayout, build_layout
 from nav.filter_state import FilterState
 from nav.imu_errors import ImuCalibration
+from nav.recovery import Recovery
 from nav.rotation import angle_between, matrix_to_quat, matrix_to_rotvec, triad
 from nav.schmidt import symmetrize
 from nav.tuning import Tuning
@@ -164,6 +165,9 @@ class NavResult:
     clock_offset: np.ndarray | None = None
     #: (M, n_cam) its 1-sigma [s] (0 where the offset is not a filter state)
     clock_offset_sigma: np.ndarray | None = None
+    #: re-initialisations from GPS after an IMU gap or a divergence (:mod:`nav.recovery`):
+    #: ``(t_ns, reason, details)`` with reason ``"imu_gap"`` or ``"divergence"``
+    recoveries: list = field(default_factory=list)
 
     def nis(self, kind: str) -> np.ndarray:
         return np.array([i.nis for i in self.innovations if i.kind == kind and i.accepted])
@@ -331,6 +335,15 @@ class _Recorder:
             self.st_dx[kc - 1] = dx
         self.mc += 1
 
+    def restart(self, k: int, st: FilterState) -> None:
+        """A re-initialised state at sample k (:mod:`nav.recovery`): the solution there, and the
+        inflated covariance as the epoch's prior (the smoother's gain into it is then small, so the
+        segments before and after are smoothed almost independently)."""
+        self.traj[k] = st.nav
+        self.P_diag[self.kc - 1] = st.P.diagonal()
+        if self.store:
+            self.st_P[self.kc - 1] = st.P
+
     def triad_pairs(self, pairs: dict) -> None:
         for tm, vecs in pairs.items():
             if "hor" in vecs and "sun" in vecs:
@@ -398,7 +411,8 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         raise ValueError(f"imu.sample: expected 'point' or 'average', got {imu.sample!r}")
     fw = np.empty((t_ns.size, 2, 3))
     fw[:, 0], fw[:, 1] = f_b, w_b
-    loop = _Loop(st, rec, sources, events, ev_idx.tolist(), t_ns, ts, fw, imu.sample == "average", rejected)
+    rcv = Recovery(ts, t_ns, tuning, sources)
+    loop = _Loop(st, rec, sources, events, ev_idx.tolist(), t_ns, ts, fw, imu.sample == "average", rejected, rcv)
     loop.run(max_block)
     if unaided:
         UX, UV, UQ = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, f_b, w_b, sample=imu.sample)
@@ -406,7 +420,7 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         UX = UV = UQ = np.empty((0, 3))
     for reason, cnt in sorted(rejected.items()):
         log.info("rejected %s: %d", reason, cnt)
-    return _result(st, rec, t_ns, R_bc_nom, (UX, UV, UQ), rejected)
+    return _result(st, rec, t_ns, R_bc_nom, (UX, UV, UQ), rejected, rcv.events)
 
 
 def _imu_window(imu: ImuData, init: InitialState, tuning: Tuning, rejected: Counter):
@@ -425,8 +439,9 @@ class _Loop:
     """The epoch loop: the measurements at the current sample, then the propagation to the next
     epoch (the next measurement's sample or ``max_block`` samples on, whichever comes first)."""
 
-    def __init__(self, st, rec, sources, events, ev_idx, t_ns, ts, fw, avg, rejected):
+    def __init__(self, st, rec, sources, events, ev_idx, t_ns, ts, fw, avg, rejected, rcv):
         self.st, self.rec, self.sources, self.events, self.ev_idx = st, rec, sources, events, ev_idx
+        self.rcv = rcv
         self.t_l, self.t_ns, self.ts, self.fw, self.avg, self.rejected = t_ns.tolist(), t_ns, ts, fw, avg, rejected
         self.stack = EpochStack(st.n, st.tuning.gate_probability)
 
@@ -446,6 +461,8 @@ class _Loop:
             st.propagate(self.ts, self.fw, rec.traj, k, k_end, self.avg, A_out, d_out)
             k = k_end
             rec.covariance_epoch(k, st.P)
+            if k >= self.rcv.next_gap:
+                self.rcv.passed(k)
 
     def measure(self, k: int, e_ptr: int):
         """Every measurement at sample k: extrapolated state, candidate blocks from its source,
@@ -457,6 +474,9 @@ class _Loop:
         stack.reset()
         N = self.t_ns.size
         kk = min(k + 1, N - 1) if self.avg else k  # the sample covering (t_k, t_m]
+        e0, n0 = e_ptr, len(self.rec.innovations)
+        if self.rcv.pending is not None:
+            self.recover(k, kk, e0, True)
         while e_ptr < len(ev) and ev_idx[e_ptr] == k:
             t_m, si, j = ev[e_ptr]
             e_ptr += 1
@@ -466,7 +486,24 @@ class _Loop:
         dx = stack.apply(st, self.rec.innovations, self.rejected, self.t_l[k])
         if stack.triad:
             self.rec.triad_pairs(stack.triad)
+        if self.rcv.watch and self.rcv.diverged(self.rejected, self.rec.innovations, n0):
+            self.recover(k, kk, e0, False)
         return e_ptr, dx
+
+    def recover(self, k: int, kk: int, e0: int, gap: bool):
+        """A re-initialisation at the epoch of sample k (:class:`nav.recovery.Recovery`): before
+        its measurements for a pending gap (``gap``), after them for a divergence. A
+        re-initialised state is recorded at k."""
+        e1 = e0
+        while e1 < len(self.events) and self.ev_idx[e1] == k:
+            e1 += 1
+        evs, t_k, f, w = self.events[e0:e1], self.t_l[k], self.fw[kk, 0], self.fw[kk, 1]
+
+        def at(t_m):
+            return f, w, (t_m - t_k) / NS
+        done = self.rcv.before(at, evs, self.st) if gap else self.rcv.after(evs, at, self.st)
+        if done:
+            self.rec.restart(k, self.st)
 
 
 def _triad_attitudes(rec: _Recorder):
@@ -501,7 +538,7 @@ def _camera_outputs(st: FilterState, rec: _Recorder, R_bc_nom):
     return mc_cam, mis.reshape(mc_cam, n_cam, 3), mis_sig, rec.clk_t[:mc_cam].copy(), clk_sig
 
 
-def _result(st: FilterState, rec: _Recorder, t_ns, R_bc_nom, unaided, rejected) -> NavResult:
+def _result(st: FilterState, rec: _Recorder, t_ns, R_bc_nom, unaided, rejected, recoveries) -> NavResult:
     kc, mc = rec.kc, rec.mc
     cov_idx = rec.cov_idx[:kc]
     tri_t, tri_q = _triad_attitudes(rec)
@@ -515,4 +552,4 @@ def _result(st: FilterState, rec: _Recorder, t_ns, R_bc_nom, unaided, rejected) 
         innovations=rec.innovations, misalignment_t_ns=rec.meas_t[:mc_cam].copy(),
         misalignment=mis, misalignment_sigma=mis_sig, triad_t_ns=tri_t, triad_q_eb=tri_q,
         rejected=dict(rejected), calibration=st.calibration, R_bc=st.R_bc.copy(), store=rec.smoother_store(),
-        clock_offset=clk, clock_offset_sigma=clk_sig)
+        clock_offset=clk, clock_offset_sigma=clk_sig, recoveries=list(recoveries))

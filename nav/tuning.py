@@ -12,6 +12,8 @@ default, an unknown table or key is an error naming it::
     [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg
     [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
     [filter]    max_cov_interval_s, gate_probability
+    [recovery]  enabled, gap_s, gap_samples, gated_fixes, velocity_sigma_m_s,
+                attitude_sigma_gap_deg, attitude_sigma_divergence_deg
 
 Every error group is ``"E"`` (estimated), ``"C"`` (considered only, Schmidt-Kalman, 003 §6.1 and
 ref. [14]) or ``"off"`` (not modelled). Units in the TOML follow 003 table 3 and end in the unit
@@ -92,6 +94,20 @@ class Tuning:
         Sensor ranges [rad/s], [m/s^2]; samples at or beyond are counted as saturated.
     max_imu_gap_s : float
         IMU time step above which a gap is counted (the INS still integrates across it).
+    recovery : bool
+        Re-initialise the navigation state from GPS after a long IMU gap or a divergence
+        (:mod:`nav.recovery` states the rules); False keeps the filter running on as it is.
+    recovery_gap_s, recovery_gap_samples : float
+        An IMU gap triggers a recovery when it is longer than both ``recovery_gap_s`` and
+        ``recovery_gap_samples`` nominal sample intervals (the median interval of the run).
+    recovery_gated_fixes : int
+        Consecutive GPS fixes with a block rejected by the chi-square gate that mark a divergence
+        (0: no divergence detection).
+    recovery_vel_sigma : float
+        1-sigma [m/s] added to the re-initialised velocity's covariance (the fix's own covariance,
+        or that of the two fixes' difference).
+    recovery_att_sigma_gap, recovery_att_sigma_divergence : float
+        1-sigma [rad] added per axis to the kept attitude's covariance after a gap / a divergence.
     """
     accel_white: float = _white_noise(IMU_WHITE_NOISE)[0]
     gyro_white: float = _white_noise(IMU_WHITE_NOISE)[1]
@@ -116,6 +132,13 @@ class Tuning:
     gyro_range: float = math.radians(1000.0)
     accel_range: float = 50.0 * G0
     max_imu_gap_s: float = 0.5
+    recovery: bool = True
+    recovery_gap_s: float = 2.0
+    recovery_gap_samples: float = 50.0
+    recovery_gated_fixes: int = 10
+    recovery_vel_sigma: float = 0.5
+    recovery_att_sigma_gap: float = math.radians(5.0)
+    recovery_att_sigma_divergence: float = math.radians(10.0)
 
     def with_(self, **kw) -> "Tuning":
         """Copy with fields replaced (dataclasses.replace)."""
@@ -171,9 +194,14 @@ _SCALARS = {
     "initial": {"attitude_sigma_deg": ("init_att_sigma", math.radians(1.0)),
                 "position_sigma_m": ("init_pos_sigma", 1.0), "velocity_sigma_m_s": ("init_vel_sigma", 1.0)},
     "filter": {"max_cov_interval_s": ("max_cov_interval_s", 1.0), "gate_probability": ("gate_probability", 1.0)},
+    "recovery": {"gap_s": ("recovery_gap_s", 1.0), "gap_samples": ("recovery_gap_samples", 1.0),
+                 "velocity_sigma_m_s": ("recovery_vel_sigma", 1.0),
+                 "attitude_sigma_gap_deg": ("recovery_att_sigma_gap", math.radians(1.0)),
+                 "attitude_sigma_divergence_deg": ("recovery_att_sigma_divergence", math.radians(1.0))},
 }
 _NONZERO = {"correlation_time_s", "max_cov_interval_s"}
-_OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE), "vectors": {"gm_mode", "targets"}, "initial": set(), "filter": set()}
+_OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE), "vectors": {"gm_mode", "targets"}, "initial": set(), "filter": set(),
+               "recovery": {"enabled", "gated_fixes"}}
 
 
 def _table(d: dict, name: str) -> dict:
@@ -216,9 +244,22 @@ def _vector_choices(vec: dict, kw: dict) -> None:
         kw["targets"] = t
 
 
+def _recovery_choices(rec: dict, kw: dict) -> None:
+    """``[recovery]`` enabled (a boolean) and gated_fixes (a non-negative integer)."""
+    if "enabled" in rec:
+        if not isinstance(rec["enabled"], bool):
+            raise ValueError(f"tuning [recovery] enabled: expected true or false, got {rec['enabled']!r}")
+        kw["recovery"] = rec["enabled"]
+    if "gated_fixes" in rec:
+        n = rec["gated_fixes"]
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise ValueError(f"tuning [recovery] gated_fixes: expected a non-negative integer, got {n!r}")
+        kw["recovery_gated_fixes"] = n
+
+
 def tuning_from_dict(d: dict) -> Tuning:
     """Build a :class:`Tuning` from a dict of overrides shaped like a tuning TOML file (tables
-    ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``; units in the key
+    ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``, ``[recovery]``; units in the key
     names): every key absent keeps the :class:`Tuning` default (003 table 3).
 
     Raises ``ValueError`` naming the offending table and key for unknown tables or keys and bad
@@ -226,7 +267,7 @@ def tuning_from_dict(d: dict) -> Tuning:
     """
     if not isinstance(d, dict):
         raise ValueError("tuning: expected a table (dict)")
-    known = {"imu", "states", "vectors", "initial", "filter"}
+    known = {"imu", "states", "vectors", "initial", "filter", "recovery"}
     unknown = set(d) - known
     if unknown:
         raise ValueError(f"tuning: unknown sections {sorted(unknown)}; expected {sorted(known)}")
@@ -239,6 +280,7 @@ def tuning_from_dict(d: dict) -> Tuning:
                 kw[field_] = _scalar(name, key, table[key], scale)
     _imu_white(d.get("imu", {}), kw)
     _vector_choices(d.get("vectors", {}), kw)
+    _recovery_choices(d.get("recovery", {}), kw)
     states = d.get("states", {})
     unknown = set(states) - set(_GROUPS)
     if unknown:

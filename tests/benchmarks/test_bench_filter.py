@@ -79,3 +79,31 @@ def test_bench_filter(bench, is_quick):
                     f"time-averaged NEES pos {st.time_avg('pos'):.2f}, vel {st.time_avg('vel'):.2f}, att {st.time_avg('att'):.2f}")
     finally:
         logging.disable(logging.NOTSET)
+
+
+def test_bench_recovery_and_alignment(bench):
+    """Recovery after a 20 s IMU gap on the atek-nav-grade coast (position error 30 s after the gap)
+    and the in-motion alignment's heading error after 60 s of an aircraft-like flight."""
+    import math
+
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
+    from nav.initialise import in_motion_alignment
+    from tests.test_alignment import aircraft_flight, heading_error_deg
+    from tests.test_recovery import GAP_S, T_GAP, gap_run
+    logging.disable(logging.WARNING)
+    try:
+        fl = simulate_flight(load_scenario("atek-nav-grade"), seed=5, duration=140.0)
+        out = gap_run(flight_inputs(fl, 60.0, seed=5))
+        bench("filter.recovery_pos_err_m_30s", out["pos_err_m"], "m", baseline=10.0, baseline_name="target 10 m",
+              notes=f"atek-nav-grade coast, GPS 10 Hz only, IMU samples T+{T_GAP:g}..T+{T_GAP + GAP_S:g} removed; "
+                    f"{100 * out['accepted']:.1f} % of the later GPS blocks accepted, "
+                    f"{len(out['res'].recoveries)} recovery")
+        imu, gps, X, V, Q = aircraft_flight(1)
+        al = in_motion_alignment(imu, gps, int(imu.t_ns[0]), window_s=60.0)
+        err = float(heading_error_deg(al.q_eb, Q[0], X[0])[0])
+        bench("filter.align_heading_err_deg_60s", err, "deg", baseline=1.0, baseline_name="target 1 deg",
+              notes=f"aircraft-like flight (turns, speed changes), 200 Hz IMU with 003 table 3 errors, GPS 5 Hz; "
+                    f"estimated sigma {math.degrees(al.att_sigma):.2f} deg")
+    finally:
+        logging.disable(logging.NOTSET)
