@@ -198,7 +198,7 @@ def test_errors_name_the_parameters(vlog, tmp_path):
     log = read_flight(vlog, t_from="T+70", t_to="T+80")
     with pytest.raises(UserError, match=r"^targets mars: expected earth, sun or moon"):
         see(log, targets=("earth", "mars"))
-    with pytest.raises(UserError, match=r"^init: expected 'auto', 'truth', 'triad', a state file or an InitialState"):
+    with pytest.raises(UserError, match=r"^init: expected 'auto', 'truth', 'triad', 'align', a state file or an InitialState"):
         navigate(log, init=3)
     missing = tmp_path / "none.toml"
     with pytest.raises(UserError, match=r"^init .*none\.toml: cannot read"):

@@ -20,9 +20,9 @@ def add_arguments(p) -> None:
     p.add_argument("--to", dest="t_to", default=None, help="end: T+<s> or UTC ISO (default: log end)")
     p.add_argument("--cameras", default=None, help="cameras to use, e.g. 1,2 (default: all)")
     p.add_argument("--targets", default="earth,sun", help="targets to use: earth,sun[,moon] (default earth,sun)")
-    p.add_argument("--init", choices=("truth", "given", "triad"), default=None,
-                   help="initialisation (default: triad when vectors exist, else truth if the log has it)")
-    p.add_argument("--init-file", default=None, help="--init given: TOML with time, q_eb [, position_e, velocity_e]")
+    p.add_argument("--init", choices=("truth", "given", "triad", "align"), default=None,
+                   help="initialisation (default: triad when vectors exist, else truth if the log has it, else align: in-motion alignment from GPS and the IMU over the first 60 s)")
+    p.add_argument("--init-file", default=None, help="--init given: TOML with time and the attitude as q_eb, roll_deg/pitch_deg/heading_deg (NED) or launcher_azimuth_deg/launcher_elevation_deg [/roll_deg] [, position_e, velocity_e]")
     p.add_argument("--no-smoother", dest="smoother", action="store_false", default=True, help="skip the RTS smoother")
     p.add_argument("--vision", choices=("auto", "images", "vectors"), default="auto",
                    help="auto: images if the log has them, else its vectors")

@@ -211,8 +211,8 @@ def _check_options(opt: ReplayOptions) -> None:
     check_vision(opt.vision, CLI)
     check_rate(opt.vision_rate_hz, "vision_rate_hz", CLI)
     check_rate(opt.rrd_image_rate_hz, "rrd_image_rate_hz", CLI)
-    if opt.init not in (None, "truth", "given", "triad"):
-        raise UserError(f"--init {opt.init}: expected truth, given or triad")
+    if opt.init not in (None, "truth", "given", "triad", "align"):
+        raise UserError(f"--init {opt.init}: expected truth, given, triad or align")
 
 
 def _init_request(opt: ReplayOptions):

@@ -22,7 +22,7 @@ from scenarios.replay.inputs import PYTHON, Wording, parse_time
 
 NS = 1_000_000_000
 #: the initialisation methods a caller names (``None``: TRIAD when the vectors allow it, else truth)
-METHODS = (None, "truth", "given", "triad")
+METHODS = (None, "truth", "given", "triad", "align")
 
 
 @dataclass(repr=False)
@@ -35,13 +35,17 @@ class Start:
         Time, position, velocity and attitude at the start of the navigation.
     method : str
         ``"truth"`` (the log's /truth/state), ``"given"`` (a state file or an ``InitialState``) or
-        ``"triad"`` (003 §7.4).
+        ``"triad"`` (003 §7.4) or ``"align"`` (in-motion alignment from GPS and the IMU,
+        :func:`nav.initialise.aligned_initial_state`).
     triad : nav.initialise.TriadInit or None
         The TRIAD result (epoch, attitude, back-propagation) when ``method`` is ``"triad"``.
     notes : list of str
         What the caller should know (e.g. why TRIAD was not possible).
     request : object
         The ``init`` argument this start answers (``"auto"``, a method, a path or a state).
+    alignment : nav.initialise.Alignment or None
+        The alignment and its attitude covariance when ``method`` is ``"align"``; the filter
+        starts with its attitude sigma (:func:`.steps.navigate`).
     """
 
     state: InitialState
@@ -49,6 +53,7 @@ class Start:
     triad: object = None
     notes: list = field(default_factory=list)
     request: object = "auto"
+    alignment: object = None
 
     def __repr__(self) -> str:
         t = f", TRIAD epoch {self.triad.t_triad_ns}" if self.triad is not None else ""
@@ -57,16 +62,16 @@ class Start:
 
 def split_request(init) -> tuple:
     """``init`` of the Python functions -> (method or None, state file or None, InitialState or None):
-    ``"auto"``/None, ``"truth"``, ``"triad"``, a path to a state TOML, or an ``InitialState``."""
+    ``"auto"``/None, ``"truth"``, ``"triad"``, ``"align"``, a path to a state TOML, or an ``InitialState``."""
     if isinstance(init, InitialState):
         return "given", None, init
     if init is None or init == "auto":
         return None, None, None
-    if isinstance(init, str) and init in ("truth", "triad", "given"):
+    if isinstance(init, str) and init in ("truth", "triad", "given", "align"):
         return init, None, None       # "given" without its file: initial_state says what is missing
     if isinstance(init, (str, Path)):
         return "given", str(init), None
-    raise UserError(f"init: expected 'auto', 'truth', 'triad', a state file or an InitialState, got {init!r}")
+    raise UserError(f"init: expected 'auto', 'truth', 'triad', 'align', a state file or an InitialState, got {init!r}")
 
 
 def initial_state(flight, vectors, method, init_file=None, state=None, *, search: bool = False,
@@ -85,16 +90,15 @@ def initial_state(flight, vectors, method, init_file=None, state=None, *, search
         if has_pair and gps is not None:
             method = "triad"
         else:
-            method = "truth" if inp.truth is not None else "gps"
+            method = "truth" if inp.truth is not None else "align"
             notes.append("initialisation: no epoch with both a horizon and a Sun vector for TRIAD (003 §7.4); "
                          + (f"using the log's truth ({w.set('init', 'truth')})" if method == "truth"
-                            else "using the first GPS fix and a level attitude with 180 deg sigma is not "
-                                 f"possible: give {w.given_state()}"))
-            if method == "gps":
-                raise UserError(f"{w.name('init')}: no TRIAD epoch and no truth in the log; give {w.given_state()} "
-                                "(time, q_eb and optionally position_e, velocity_e)")
+                            else "in-motion alignment from GPS and the accelerometer"))
+    alignment = None
     if state is not None:
         init = state
+    elif method == "align":
+        init, alignment = _aligned(imu, gps, w)
     elif method == "truth":
         if inp.truth is None:
             raise UserError(f"{w.set('init', 'truth')}: {inp.path} has no /truth/state; use "
@@ -117,7 +121,31 @@ def initial_state(flight, vectors, method, init_file=None, state=None, *, search
         vectors = _correct_earth(vectors, imu, init, inp, R_bc)
         if method == "triad":
             init, tri = triad(imu, gps, vectors, R_bc, w)
-    return Start(init, method, tri, notes)
+    return Start(init, method, tri, notes, alignment=alignment)
+
+
+#: the largest attitude sigma an in-motion alignment may start the filter with: beyond it the
+#: first updates are far from linear (003 §7.4 starts TRIAD-initialised filters at 2 deg)
+ALIGN_MAX_SIGMA_DEG = 5.0
+
+
+def _aligned(imu, gps, w: Wording):
+    """:func:`nav.initialise.aligned_initial_state` over the first 60 s, or a refusal naming what
+    to give instead when GPS velocity is missing or the motion does not determine the attitude."""
+    from nav.initialise import aligned_initial_state
+    if gps is None or gps.v_e is None or len(gps.t_ns) < 2:
+        raise UserError(f"{w.set('init', 'align')}: needs GPS position and velocity; give {w.given_state()} "
+                        "(time and q_eb, roll/pitch/heading or the launcher's azimuth/elevation)")
+    try:
+        init, al = aligned_initial_state(imu, gps, int(imu.t_ns[0]), window_s=60.0)
+    except ValueError as e:
+        raise UserError(f"{w.set('init', 'align')}: {e}; give {w.given_state()}") from None
+    sigma = np.degrees(al.att_sigma)
+    if not np.isfinite(sigma) or sigma > ALIGN_MAX_SIGMA_DEG:
+        raise UserError(f"{w.set('init', 'align')}: the first 60 s of motion give the attitude to {sigma:.1f} deg "
+                        f"(1 sigma; at most {ALIGN_MAX_SIGMA_DEG:g} deg usable: the heading needs turns or speed "
+                        f"changes and gyros that do not saturate); give {w.given_state()}")
+    return init, al
 
 
 def triad(imu, gps, vectors, R_bc, wording: Wording = PYTHON):
@@ -139,12 +167,7 @@ def _given_init(path, inp, imu, w: Wording) -> InitialState:
         d = tomllib.loads(p.read_text())
     except (OSError, tomllib.TOMLDecodeError) as e:
         raise UserError(f"{what}: cannot read ({e})") from None
-    try:
-        t = parse_time(str(d["time"]), inp.liftoff_ns, f"{what}: time") if "time" in d else int(imu.t_ns[0])
-        q = np.asarray(d["q_eb"], float)
-    except KeyError as e:
-        raise UserError(f"{what}: missing key {e} (expected time, q_eb [x, y, z, w], and position_e / "
-                        "velocity_e unless the log has GPS)") from None
+    t = parse_time(str(d["time"]), inp.liftoff_ns, f"{what}: time") if "time" in d else int(imu.t_ns[0])
     i = int(np.searchsorted(imu.t_ns, t))
     if i >= imu.t_ns.size - 1:
         raise UserError(f"{what}: time is after the IMU record")
@@ -156,9 +179,39 @@ def _given_init(path, inp, imu, w: Wording) -> InitialState:
         x, v = gps_interpolator(inp.gps)(t0)
     else:
         raise UserError(f"{what}: no position_e and the log has no GPS")
+    q = _given_attitude(d, x, imu, i, what)
     if q.shape != (4,) or not np.isclose(np.linalg.norm(q), 1.0, atol=1e-6):
         raise UserError(f"{what}: q_eb must be a unit quaternion [x, y, z, w]")
     return InitialState(t0, x, v, q)
+
+
+#: the ways a state file may give the attitude, each a set of keys
+_ATTITUDE_KEYS = ("q_eb [x, y, z, w] (body to ECEF)", "roll_deg, pitch_deg, heading_deg (NED)",
+                  "launcher_azimuth_deg, launcher_elevation_deg and optionally roll_deg (on the rail)")
+
+
+def _given_attitude(d: dict, x_e, imu, i: int, what: str) -> np.ndarray:
+    """q_eb from a state file: ``q_eb``, NED roll/pitch/heading, or the launcher's azimuth and
+    elevation with the roll given or from the accelerometer over the first second at rest
+    (:func:`nav.initialise.launcher_alignment`)."""
+    from nav.initialise import euler_to_q_eb, launcher_alignment
+    try:
+        if "q_eb" in d:
+            return np.asarray(d["q_eb"], float)
+        if "launcher_azimuth_deg" in d or "launcher_elevation_deg" in d:
+            az, el = float(d["launcher_azimuth_deg"]), float(d["launcher_elevation_deg"])
+            if "roll_deg" in d:
+                return launcher_alignment(az, el, x_e, roll_deg=float(d["roll_deg"])).q_eb
+            rest = np.asarray(imu.t_ns[i:], np.int64) <= int(imu.t_ns[i]) + NS
+            return launcher_alignment(az, el, x_e, f_b=imu.f_b[i:][rest]).q_eb
+        if {"roll_deg", "pitch_deg", "heading_deg"} & set(d):
+            return euler_to_q_eb(float(d["roll_deg"]), float(d["pitch_deg"]), float(d["heading_deg"]), x_e)
+    except KeyError as e:
+        raise UserError(f"{what}: missing key {e} for this attitude; give one of: {'; '.join(_ATTITUDE_KEYS)}") from None
+    except (TypeError, ValueError) as e:
+        raise UserError(f"{what}: attitude: {e}") from None
+    raise UserError(f"{what}: no attitude; give one of: {'; '.join(_ATTITUDE_KEYS)} "
+                    "(and position_e / velocity_e unless the log has GPS)")
 
 
 def _truth_init(inp, imu, w: Wording) -> InitialState:
