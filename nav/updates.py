@@ -13,9 +13,10 @@ supplies, for its measurement ``j``:
   stamp (a camera clock offset estimate), 0 for GPS;
 * ``fill(j, t_ns, at, st, stack)``: the candidate blocks of the measurement, appended to the
   epoch's :class:`EpochStack`: ``stack.reserve(m)`` gives the first of m rows (the source writes
-  them whole) of the stacked Jacobian ``stack.H`` (m, n) and innovation ``stack.s``;
-  ``stack.add(...)`` records each block with its kind, camera, noise R and input problem (a
-  reason string, or None). ``at`` is
+  them whole) of the stacked Jacobian ``stack.H`` (m, n) and innovation ``stack.s``, and the
+  diagonal block ``stack.R[o:o + m, o:o + m]`` of the noise (the source writes it whole; the rest
+  of those rows of R is zero); ``stack.add(...)`` records each block with its kind, camera,
+  dimension and input problem (a reason string, or None). ``at`` is
   ``(f, w, dt_m)``: the IMU sample covering the interval to the stamp and its length [s], from
   which ``st.extrapolate(*at)`` gives the state at the stamp (``x_m, v_m, R_m, w_eb``,
   :func:`nav.filter_state.extrapolate`; a kernel may do it itself, as :func:`gps_fill_kernel`);
@@ -66,13 +67,15 @@ class Innovation:
 
 
 class EpochStack:
-    """The candidate blocks of one epoch, stacked: Jacobian rows ``H`` (rows, n), innovations ``s``
-    and, per block, ``(t_ns, kind, camera, first row, dimension, R, problem)``; ``triad``: the
-    horizon / Sun direction pairs of the epoch by stamp, for TRIAD."""
+    """The candidate blocks of one epoch, stacked: Jacobian rows ``H`` (rows, n), innovations ``s``,
+    noise ``R`` (rows, rows; block diagonal) and, per block, ``(t_ns, kind, camera, first row,
+    dimension, problem)``; ``triad``: the horizon / Sun direction pairs of the epoch by stamp, for
+    TRIAD."""
 
     def __init__(self, n: int, gate_probability: float):
         self.H = np.zeros((8, n))
         self.s = np.empty(8)
+        self.R = np.zeros((8, 8))
         self.m = 0
         self.blocks = []
         self.triad = {}
@@ -86,22 +89,26 @@ class EpochStack:
         self.triad = {}
 
     def reserve(self, m: int) -> int:
-        """First of ``m`` new rows of ``H`` and ``s`` (the source writes them whole)."""
+        """First of ``m`` new rows of ``H``, ``s`` and ``R`` (the source writes them and the
+        diagonal block of R whole); the noise between them and the earlier rows is zeroed."""
         o = self.m
         if o + m > self.s.size:
             cap = 2 * (o + m)
-            H, s = np.zeros((cap, self.H.shape[1])), np.empty(cap)
-            H[:o], s[:o] = self.H[:o], self.s[:o]
-            self.H, self.s = H, s
+            H, s, R = np.zeros((cap, self.H.shape[1])), np.empty(cap), np.zeros((cap, cap))
+            H[:o], s[:o], R[:o, :o] = self.H[:o], self.s[:o], self.R[:o, :o]
+            self.H, self.s, self.R = H, s, R
+        if o:
+            self.R[o:o + m, :o] = 0.0
+            self.R[:o, o:o + m] = 0.0
         self.m = o + m
         return o
 
-    def add(self, t_ns: int, kind: str, camera: int, o: int, dim: int, R, problem) -> None:
-        self.blocks.append((t_ns, kind, camera, o, dim, R, problem))
+    def add(self, t_ns: int, kind: str, camera: int, o: int, dim: int, problem) -> None:
+        self.blocks.append((t_ns, kind, camera, o, dim, problem))
 
     def _pattern(self, sizes: tuple):
         """For a sequence of block sizes: row offsets (array and list), chi-square gates, and the
-        update's work arrays (R, zero off the diagonal blocks; S; nis; code), reused."""
+        update's work arrays (S, nis, code), reused."""
         pat = self._patterns.get(sizes)
         if pat is None:
             offs = np.zeros(len(sizes) + 1, dtype=np.int64)
@@ -111,20 +118,19 @@ class EpochStack:
                     self._gates[d] = chi2_gate(d, self._p)
             m, nb_ = int(offs[-1]), len(sizes)
             pat = self._patterns[sizes] = (offs, offs.tolist(), np.array([self._gates[d] for d in sizes]),
-                                           np.zeros((m, m)), np.empty((m, m)), np.empty(nb_),
-                                           np.empty(nb_, dtype=np.int64))
+                                           np.empty((m, m)), np.empty(nb_), np.empty(nb_, dtype=np.int64))
         return pat
 
     def apply(self, st, innovations: list, rejected, t_k: int) -> np.ndarray | None:
         """Gate the blocks, apply the accepted ones (P in place) and feed back: the correction
         ``dx`` when an update was applied, else None. Each block's innovation is appended to
         ``innovations``; rejections are counted in ``rejected`` and logged."""
-        good = [b for b in self.blocks if b[6] is None]
+        good = [b for b in self.blocks if b[5] is None]
         status, dx = GATED, None
         if good:
             status, dx, S_all, offs, code, nis_l = self._update(st, good)
         gi = 0
-        for t_m, kind, cam, o, dim, R, bad in self.blocks:
+        for t_m, kind, cam, o, dim, bad in self.blocks:
             nis, S = np.nan, None
             if bad is None:
                 if code[gi] != NONFINITE:
@@ -134,7 +140,7 @@ class EpochStack:
                     bad = REASONS[code[gi]]
                 gi += 1
             if S is None:
-                S = np.full(np.shape(R), np.nan)
+                S = np.full((dim, dim), np.nan)
             innovations.append(Innovation(t_m, kind, cam, self.s[o:o + dim].copy(), S, nis, bad is None, bad))
             if bad is not None:
                 rejected[f"{kind}_{bad}"] += 1
@@ -148,15 +154,13 @@ class EpochStack:
 
     def _update(self, st, good):
         """:func:`update_feedback_kernel` on the blocks without input problems."""
-        offs, offs_l, gates, R, S, nis, code = self._pattern(tuple([b[4] for b in good]))
+        offs, offs_l, gates, S, nis, code = self._pattern(tuple([b[4] for b in good]))
         m = offs_l[-1]
         if m == self.m:
-            H, s = self.H[:m], self.s[:m]
+            H, s, R = self.H[:m], self.s[:m], self.R[:m, :m]
         else:
             rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in good])
-            H, s = self.H[rows], self.s[rows]
-        for i, b in enumerate(good):
-            R[offs_l[i]:offs_l[i + 1], offs_l[i]:offs_l[i + 1]] = b[5]
+            H, s, R = self.H[rows], self.s[rows], self.R[np.ix_(rows, rows)]
         dx = np.empty(st.n)
         status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
                                                  st.nav, st.fed, st.fb)
@@ -193,10 +197,11 @@ class GpsFixes:
                        else ~np.all(np.isnan(v.reshape(self.t_ns.size, 3)), axis=1))
         self.has_v = bool(self.with_v.any())
         self.v = v if self.has_v else self.x
-        self.P_x = np.asarray(gps.P_x, float)
-        self.P_v = np.asarray(gps.P_v, float) if self.has_v else None
+        self.P_x = np.ascontiguousarray(gps.P_x, float)
+        self.P_v = np.ascontiguousarray(gps.P_v, float) if self.has_v else self.P_x
         self.bad_x = list(cov3_problems(self.x, self.P_x))
         self.bad_v = list(cov3_problems(self.v, self.P_v)) if self.has_v else None
+        self.with_v_l = self.with_v.tolist()
         self.lever = np.asarray(lever_b, float)
         self.cols = np.array([layout["dx"].start, layout["dv"].start, layout["psi"].start], np.int64)
 
@@ -207,24 +212,35 @@ class GpsFixes:
         return 0.0
 
     def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
-        has_v = bool(self.with_v[j])
-        m = 6 if has_v else 3
-        o = stack.reserve(m)
+        has_v = self.with_v_l[j]
+        o = stack.reserve(6 if has_v else 3)
         f, w, dt_m = at
-        gps_fill_kernel(st.nav, f, w, dt_m, self.lever, self.x[j], self.v[j], has_v, self.cols,
-                        stack.H[o:o + m], stack.s[o:o + m])
-        stack.add(t_m, "gps_pos", -1, o, 3, self.P_x[j], self.bad_x[j])
+        gps_fill_kernel(st.nav, f, w, dt_m, self.lever, self.x, self.v, self.P_x, self.P_v, j, has_v,
+                        self.cols, stack.H, stack.s, stack.R, o)
+        stack.add(t_m, "gps_pos", -1, o, 3, self.bad_x[j])
         if has_v:
-            stack.add(t_m, "gps_vel", -1, o + 3, 3, self.P_v[j], self.bad_v[j])
+            stack.add(t_m, "gps_vel", -1, o + 3, 3, self.bad_v[j])
 
 
 @nb.njit(cache=True)
-def gps_fill_kernel(nav, f, w, dt_m, lever, xg, vg, has_v, cols, H, s):
-    """:func:`nav.filter_state.extrapolate` to the fix's time, then :func:`gps_rows_kernel` into
-    the rows ``H`` (zeroed first) and ``s``."""
+def gps_fill_kernel(nav, f, w, dt_m, lever, X, V, P_x, P_v, j, has_v, cols, H, s, R, o):
+    """:func:`nav.filter_state.extrapolate` to the time of fix ``j``, then :func:`gps_rows_kernel`
+    into the rows ``o..o+m`` of ``H`` (zeroed first) and ``s``, and the fix's covariances
+    ``P_x[j]``, ``P_v[j]`` into the diagonal blocks of ``R`` there (m = 6 with ``has_v``, else 3).
+    ``X``, ``V``: the fixes' positions and velocities."""
     x_m, v_m, R_m, w_eb = extrapolate(nav, f, w, dt_m, OMEGA_E)
-    H[:, :] = 0.0
-    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, xg, vg, has_v, cols, H, s)
+    m = 6 if has_v else 3
+    Hm = H[o:o + m]
+    Hm[:, :] = 0.0
+    gps_rows_kernel(x_m, v_m, R_m, w_eb, lever, X[j], V[j], has_v, cols, Hm, s[o:o + m])
+    for r in range(m):
+        for c in range(m):
+            R[o + r, o + c] = 0.0
+    for r in range(3):
+        for c in range(3):
+            R[o + r, o + c] = P_x[j, r, c]
+            if has_v:
+                R[o + 3 + r, o + 3 + c] = P_v[j, r, c]
 
 
 @nb.njit(cache=True)
@@ -310,7 +326,8 @@ class CameraVectors:
         if bad:
             stack.H[o:o + 2] = 0.0
             stack.s[o:o + 2] = np.nan
-            stack.add(t_m, target, cam, o, 2, np.eye(2), bad)
+            stack.R[o:o + 2, o:o + 2] = np.eye(2)
+            stack.add(t_m, target, cam, o, 2, bad)
             return
         x_m, v_m, R_m, w_eb = st.extrapolate(*at)
         lay, n = self.layout, st.n
@@ -341,7 +358,8 @@ class CameraVectors:
         stack.triad.setdefault(t_m, {})[target] = (R_bc @ e_c, u_e)
         stack.H[o:o + 2] = T.T @ H3
         stack.s[o:o + 2] = T.T @ (e_c - pred)
-        stack.add(t_m, target, cam, o, 2, T.T @ R3 @ T, None)
+        stack.R[o:o + 2, o:o + 2] = T.T @ R3 @ T
+        stack.add(t_m, target, cam, o, 2, None)
 
     def _restart_zeta(self, st, zname: str, t_m: int, P_c) -> None:
         """Quasi-stationary P_c of 003 eq. (44): a first (or stale, > 3 T_c) sighting restarts the
