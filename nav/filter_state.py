@@ -127,7 +127,9 @@ class FilterState:
     def calibration_changed(self) -> None:
         """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into
         the IMU error estimates
-        (only the biases when no scale factor or misalignment is estimated: A stays as it is)."""
+        (only the biases when no scale factor or misalignment is estimated: A stays as it is;
+        :func:`nav.updates.update_feedback_kernel` copies the biases itself and calls for this
+        only when ``affine_estimated``)."""
         self._set_calibration(self.affine_estimated)
 
     def extrapolate(self, f, w, dt_m):

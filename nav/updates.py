@@ -82,6 +82,7 @@ class EpochStack:
         self._p = gate_probability
         self._gates = {}
         self._patterns = {}
+        self._dx = np.empty(n)   #: the correction of the latest update (the caller copies it)
 
     def reset(self) -> None:
         self.m = 0
@@ -129,19 +130,20 @@ class EpochStack:
         status, dx = GATED, None
         if good:
             status, dx, S_all, offs, code, nis_l = self._update(st, good)
-        gi = 0
+        gi, s_all, append = 0, self.s, innovations.append
         for t_m, kind, cam, o, dim, bad in self.blocks:
             nis, S = np.nan, None
             if bad is None:
-                if code[gi] != NONFINITE:
-                    S = S_all[offs[gi]:offs[gi + 1], offs[gi]:offs[gi + 1]].copy()
+                c, a, b = code[gi], offs[gi], offs[gi + 1]
+                if c != NONFINITE:
+                    S = S_all[a:b, a:b].copy()
                 nis = nis_l[gi]
-                if code[gi] != OK:
-                    bad = REASONS[code[gi]]
+                if c != OK:
+                    bad = REASONS[c]
                 gi += 1
             if S is None:
                 S = np.full((dim, dim), np.nan)
-            innovations.append(Innovation(t_m, kind, cam, self.s[o:o + dim].copy(), S, nis, bad is None, bad))
+            append(Innovation(t_m, kind, cam, s_all[o:o + dim].copy(), S, nis, bad is None, bad))
             if bad is not None:
                 rejected[f"{kind}_{bad}"] += 1
                 log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
@@ -161,23 +163,29 @@ class EpochStack:
         else:
             rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in good])
             H, s, R = self.H[rows], self.s[rows], self.R[np.ix_(rows, rows)]
-        dx = np.empty(st.n)
+        dx = self._dx
         status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
-                                                 st.nav, st.fed, st.fb)
-        if changed:
+                                                 st.nav, st.fed, st.fb, st.cal_m)
+        if changed and st.affine_estimated:
             st.calibration_changed()
         return status, dx, S, offs_l, code.tolist(), nis.tolist()
 
 
 @nb.njit(cache=True)
-def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, fed, fb):
+def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, fed, fb, cal_m):
     """The gated stacked Schmidt update (:func:`nav.schmidt.update_kernel`, arguments as there)
-    and, when it is applied, the feedback of ``dx`` (:func:`nav.filter_state.feedback_kernel`).
+    and, when it is applied, the feedback of ``dx`` (:func:`nav.filter_state.feedback_kernel`)
+    with the fed-back IMU biases copied into the INS calibration ``cal_m`` (its A matrices are
+    the caller's to refresh when scale factors or misalignments are estimated).
     Returns ``(status, IMU calibration changed)``."""
     status = update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx)
     changed = False
     if status == OK:
         changed = feedback_kernel(dx, nav, fed, fb)
+        if changed:
+            for i in range(3):
+                cal_m[0, 3, i] = fed[i]
+                cal_m[1, 3, i] = fed[3 + i]
     return status, changed
 
 
