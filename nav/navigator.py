@@ -298,7 +298,7 @@ class _Recorder:
         self.clk_t = np.empty((M_max, n_cam))
         self.kc, self.mc = 1, 0   # covariance and update epochs so far
         self.tri_t, self.tri_in, self.innovations = [], [], []
-        self.store = store
+        self.store, self.n_cam = store, n_cam
         self.A, self.d = np.empty((9, n)), np.empty(n)   # the block transition when nothing is stored
         if store:
             self.st_A, self.st_d = np.empty((K_max, 9, n)), np.empty((K_max, n))
@@ -327,7 +327,7 @@ class _Recorder:
         self.P_diag[kc - 1] = st.P.diagonal()
         self.meas_t[mc] = t
         self.P_full[mc] = st.P
-        if st.R_bc.shape[0]:
+        if self.n_cam:
             self.R_bc_hist[mc] = st.R_bc
             self.clk_t[mc] = st.clk0 + st.clk_hat
         if self.store:
@@ -468,25 +468,27 @@ class _Loop:
         """Every measurement at sample k: extrapolated state, candidate blocks from its source,
         then the gated stacked update and feedback (:meth:`nav.updates.EpochStack.apply`).
         Returns the next event and the fed-back correction (None: no update applied)."""
-        ev, ev_idx, st, stack = self.events, self.ev_idx, self.st, self.stack
-        if e_ptr >= len(ev) or ev_idx[e_ptr] != k:
+        ev, ev_idx = self.events, self.ev_idx
+        n_ev = len(ev)
+        if e_ptr >= n_ev or ev_idx[e_ptr] != k:
             return e_ptr, None
+        st, stack, rcv, sources, t_k = self.st, self.stack, self.rcv, self.sources, self.t_l[k]
+        innovations = self.rec.innovations
         stack.reset()
-        N = self.t_ns.size
-        kk = min(k + 1, N - 1) if self.avg else k  # the sample covering (t_k, t_m]
-        e0, n0 = e_ptr, len(self.rec.innovations)
-        if self.rcv.pending is not None:
+        kk = min(k + 1, self.t_ns.size - 1) if self.avg else k  # the sample covering (t_k, t_m]
+        f, w = self.fw[kk]
+        e0, n0 = e_ptr, len(innovations)
+        if rcv.pending is not None:
             self.recover(k, kk, e0, True)
-        while e_ptr < len(ev) and ev_idx[e_ptr] == k:
+        while e_ptr < n_ev and ev_idx[e_ptr] == k:
             t_m, si, j = ev[e_ptr]
             e_ptr += 1
-            src = self.sources[si]
-            dt_m = (t_m - self.t_l[k]) / NS - src.clock_shift(j, st)
-            src.fill(j, t_m, (self.fw[kk, 0], self.fw[kk, 1], dt_m), st, stack)
-        dx = stack.apply(st, self.rec.innovations, self.rejected, self.t_l[k])
+            src = sources[si]
+            src.fill(j, t_m, (f, w, (t_m - t_k) / NS - src.clock_shift(j, st)), st, stack)
+        dx = stack.apply(st, innovations, self.rejected, t_k)
         if stack.triad:
             self.rec.triad_pairs(stack.triad)
-        if self.rcv.watch and self.rcv.diverged(self.rejected, self.rec.innovations, n0):
+        if rcv.watch and rcv.diverged(self.rejected, innovations, n0):
             self.recover(k, kk, e0, False)
         return e_ptr, dx
 

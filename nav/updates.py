@@ -82,6 +82,7 @@ class EpochStack:
         self._p = gate_probability
         self._gates = {}
         self._patterns = {}
+        self._views = {}   #: rows -> the first rows of H, s and R (views, reused)
         self._dx = np.empty(n)   #: the correction of the latest update (the caller copies it)
 
     def reset(self) -> None:
@@ -98,6 +99,7 @@ class EpochStack:
             H, s, R = np.zeros((cap, self.H.shape[1])), np.empty(cap), np.zeros((cap, cap))
             H[:o], s[:o], R[:o, :o] = self.H[:o], self.s[:o], self.R[:o, :o]
             self.H, self.s, self.R = H, s, R
+            self._views = {}
         if o:
             self.R[o:o + m, :o] = 0.0
             self.R[:o, o:o + m] = 0.0
@@ -106,6 +108,10 @@ class EpochStack:
 
     def add(self, t_ns: int, kind: str, camera: int, o: int, dim: int, problem) -> None:
         self.blocks.append((t_ns, kind, camera, o, dim, problem))
+
+    def _view(self, m: int):
+        v = self._views[m] = (self.H[:m], self.s[:m], self.R[:m, :m])
+        return v
 
     def _pattern(self, sizes: tuple):
         """For a sequence of block sizes: row offsets (array and list), chi-square gates, and the
@@ -159,7 +165,7 @@ class EpochStack:
         offs, offs_l, gates, S, nis, code = self._pattern(tuple([b[4] for b in good]))
         m = offs_l[-1]
         if m == self.m:
-            H, s, R = self.H[:m], self.s[:m], self.R[:m, :m]
+            H, s, R = self._views.get(m) or self._view(m)
         else:
             rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in good])
             H, s, R = self.H[rows], self.s[rows], self.R[np.ix_(rows, rows)]
