@@ -2,12 +2,13 @@
 #   make demo   create .venv, install, run the main job on the default scenario
 #   make test   create .venv if needed, install, run the whole suite
 #   make bench  run tests/benchmarks and write bench.json (QUICK=1 for the short version)
+#   make view   open the demo's recording (logs/atek.rrd) in the pinned Rerun viewer
 PY ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench clean install bytecode
+.PHONY: demo test bench view clean install bytecode
 
 install: $(STAMP)
 
@@ -28,6 +29,9 @@ test: $(STAMP) bytecode
 
 demo: $(STAMP) bytecode
 	$(BIN)/horizon-nav demo
+
+view: $(STAMP)
+	$(BIN)/rerun logs/atek.rrd
 
 bench: $(STAMP) bytecode
 	HORIZON_NAV_BENCH_QUICK=$(QUICK) $(BIN)/python -m pytest -q -s tests/benchmarks -p no:cacheprovider

@@ -6,7 +6,7 @@
    (``logs/atek.solution.mcap``, Rerun recording ``logs/atek.rrd``);
 3. print the summary (attitude errors against the simulator's truth).
 
-Open the recording with ``rerun logs/atek.rrd``.
+Open the recording with ``make view`` (``.venv/bin/rerun logs/atek.rrd``).
 """
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from scenarios.cli import replay as replay_cmd
+    from scenarios.replay.summary import viewer_command
     from scenarios.cli import simulate as sim_cmd
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -45,5 +46,6 @@ def run(args) -> int:
                             no_rerun=False, spawn=False, json=False, quiet=args.quiet)
     rc = replay_cmd.run(ra)
     t2 = time.perf_counter()
-    print(f"\ndemo: simulation {t1 - t0:.0f} s, replay {t2 - t1:.0f} s. Open the recording with: rerun {out / 'atek.rrd'}")
+    print(f"\ndemo: simulation {t1 - t0:.0f} s, replay {t2 - t1:.0f} s. Open the recording with: "
+          f"{viewer_command(out / 'atek.rrd')} (or: make view)")
     return rc

@@ -2,7 +2,10 @@
 camera misalignments with 3 sigma, and errors against truth when the log has it."""
 from __future__ import annotations
 
+import os
+import sys
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 
@@ -196,8 +199,24 @@ def format_table(s: dict) -> str:
                      f"{d['p95_deg']:>7.3f} {d['max_deg']:>7.3f} {d['bias_deg']:>7.3f}")
     L.append("")
     L.append("time per stage [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()))
-    L.append(f"solution: {s['solution']}" + (f"   recording: {s['rrd']}  (open with: rerun {s['rrd']})" if s["rrd"] else ""))
+    L.append(f"solution: {s['solution']}" + (f"   recording: {s['rrd']}  (open with: {viewer_command(s['rrd'])})" if s["rrd"] else ""))
     return "\n".join(L)
 
 
-__all__ = ["summarize", "format_table", "truth_errors", "vector_errors", "attitude_error"]
+def viewer_command(rrd) -> str:
+    """The shell command that opens the recording ``rrd`` with the Rerun viewer this interpreter
+    has installed (``rerun`` beside ``sys.executable``, e.g. ``.venv/bin/rerun``; the bare name when
+    it is not there), paths relative to the working directory where they are below it."""
+    exe = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+    if not exe.exists():
+        return f"rerun {rrd}"
+    try:
+        cmd = os.path.relpath(exe)
+    except ValueError:      # another drive
+        cmd = str(exe)
+    if not cmd.startswith((".", os.sep)):
+        cmd = os.path.join(".", cmd)   # a bare relative name would be looked up on PATH
+    return f"{cmd} {rrd}"
+
+
+__all__ = ["summarize", "format_table", "truth_errors", "vector_errors", "attitude_error", "viewer_command"]
