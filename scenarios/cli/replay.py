@@ -3,8 +3,10 @@ solution MCAP and a Rerun recording and prints a summary (docs/replay.md)."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
+from pathlib import Path
 
 from scenarios.errors import UserError
 
@@ -67,12 +69,30 @@ def options_from_args(args):
                          progress=not args.quiet and not args.json)
 
 
+#: compiled kernels whose numba cache index marks a package as compiled (the filter's propagation
+#: and the front end's limb profiles: the largest of each)
+CACHE_MARKERS = (("nav", "filter_state.propagate_block-"), ("vision", "limb."))
+
+
+def kernels_cached(root: Path | None = None) -> bool:
+    """Whether numba's on-disk cache holds the filter's and the front end's kernels (the first
+    run compiles them, 1-2 minutes). With ``NUMBA_CACHE_DIR`` set the cache is elsewhere and
+    this answers True (nothing is claimed)."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return True
+    root = Path(__file__).resolve().parents[2] if root is None else Path(root)
+    return all(any((root / pkg / "__pycache__").glob(stem + "*.nbi")) for pkg, stem in CACHE_MARKERS)
+
+
 def run(args) -> int:
     from scenarios.replay.pipeline import replay
     from scenarios.replay.summary import format_table, summarize
     import logging
     logging.getLogger("nav.navigator").setLevel(logging.ERROR)  # rejections are counted in the summary
     opt = options_from_args(args)
+    if not args.quiet and not kernels_cached():
+        print("first run: numba compiles the filter and vision kernels once (1-2 min; the progress bar waits "
+              "in init meanwhile); later runs load them from the cache", file=sys.stderr)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         rr = replay(args.log, opt)
