@@ -3,7 +3,7 @@ conversions, the tangent-plane basis of a unit vector and the J2 gravity, alloca
 for the kernels of :mod:`nav.ins`, :mod:`nav.error_state` and the filter loop
 (:mod:`nav.filter_state`, :mod:`nav.updates`).
 
-Conventions as :mod:`nav.rotation` (CONVENTIONS "Rotations"): quaternions scalar-last, ``R_ab``
+Conventions as :mod:`nav.rotation` (docs/conventions.md "Rotations"): quaternions scalar-last, ``R_ab``
 maps b into a. ``tests/test_ins.py`` checks them against scipy and :func:`nav.earth.gravity_e`.
 Other packages' kernels (the truth simulator) import them from here.
 """

@@ -4,7 +4,7 @@ Built on ERFA (``pyerfa``: the SOFA routines astropy uses), not on a hand-writte
 
 * celestial (GCRS) -> terrestrial rotation: IAU 2000B precession-nutation (1 mas agreement with
   2000A, far inside the 0.001 deg asked for) and the Earth rotation angle, ``erfa.c2t00b``; polar
-  motion is ignored (< 0.5 arcsec, CONVENTIONS "Frames"); UT1 - UTC defaults to 0 (the Earth
+  motion is ignored (< 0.5 arcsec, docs/conventions.md "Frames"); UT1 - UTC defaults to 0 (the Earth
   rotation angle is then off by up to 0.9 s of rotation, about 0.004 deg) and can be passed;
 * Sun: Earth's heliocentric and barycentric position and velocity from ``erfa.epv00`` (VSOP2000
   fit, a few km); the geocentric apparent direction includes annual aberration (about 20 arcsec,

@@ -6,7 +6,7 @@ Order (groups switched ``"off"`` in the tuning are left out)::
                     | dt_c[k] for each camera k | zeta[k, target] for each camera k and target
 
 * ``dx_e, dv_e`` true minus estimated position and velocity in e [m, m/s];
-* ``psi`` attitude error in e, from the estimated to the true attitude (CONVENTIONS "Rotations");
+* ``psi`` attitude error in e, from the estimated to the true attitude (docs/conventions.md "Rotations");
 * ``b_f, b_w`` residual accelerometer / gyro bias (measurement minus truth after calibration);
 * ``s_f, s_w`` residual scale factors, ``m_f, m_w`` residual small-angle misalignments
   (sensitivities in :mod:`nav.imu_errors`);

@@ -1,6 +1,6 @@
 """Observation equations of the navigation filter: GPS and camera direction vectors (003 §6.2-6.3).
 
-Conventions (CONVENTIONS.md): ``psi`` in e with ``R_eb_true = (I + [psi x]) R_eb_est``; camera
+Conventions (docs/conventions.md): ``psi`` in e with ``R_eb_true = (I + [psi x]) R_eb_est``; camera
 misalignment ``psi_c`` in b with ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50)).
 Error states are "true minus estimated", innovations "measured minus predicted" (003 eq. (40)), so
 ``s = H z + noise`` with the Jacobians below.

@@ -1,4 +1,4 @@
-"""Rotation helpers following CONVENTIONS.md.
+"""Rotation helpers following docs/conventions.md.
 
 ``R_ab`` maps a vector from frame b into frame a (``v_a = R_ab @ v_b``); quaternions are stored
 scalar-last ``[x, y, z, w]`` with unit norm, the same convention as
@@ -111,7 +111,7 @@ def matrix_to_rotvec(R) -> np.ndarray:
 
 def small_angle_update(R, psi) -> np.ndarray:
     """Apply an attitude correction: ``exp([psi x]) @ R``, the exact form of
-    ``(I + [psi x]) @ R`` (CONVENTIONS "Rotations"; 003 eq. (50)) that keeps R orthonormal."""
+    ``(I + [psi x]) @ R`` (docs/conventions.md "Rotations"; 003 eq. (50)) that keeps R orthonormal."""
     return rotvec_to_matrix(psi) @ as_matrices(R, "R")
 
 

@@ -1,7 +1,7 @@
 """Time scales: UTC, TAI, TT and GPS time as integer nanoseconds.
 
 The absolute time type of horizon-nav is ``int64`` nanoseconds since the Unix epoch, UTC
-(CONVENTIONS.md, "Time"). Unix time does not count leap seconds, so an instant inside a positive
+(docs/conventions.md, "Time"). Unix time does not count leap seconds, so an instant inside a positive
 leap second (23:59:60) has no UTC stamp of its own; sensors that stamp in GPS or TAI time convert
 through this module. TAI - UTC comes from the IERS leap-second table below (Bulletin C); TT = TAI
 + 32.184 s; GPS = TAI - 19 s.

@@ -1,7 +1,7 @@
 """Navigation filter tuning: the :class:`Tuning` dataclass and parsing of overrides from a dict or
 a TOML string (no file I/O).
 
-:class:`Tuning` holds every default: 003 table 3 (CONVENTIONS.md "The reference flight"). A
+:class:`Tuning` holds every default: 003 table 3 (docs/conventions.md "The reference flight"). A
 tuning file holds overrides only, in tables per part of the filter; a key left out keeps the
 default, an unknown table or key is an error naming it::
 

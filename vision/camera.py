@@ -3,7 +3,7 @@
 Model
 -----
 A ray ``p_c = [x, y, z]`` in the camera frame c (z along the optical axis, x right, y down;
-CONVENTIONS.md) makes the angle ``theta = atan2(hypot(x, y), z)`` with the optical axis
+docs/conventions.md) makes the angle ``theta = atan2(hypot(x, y), z)`` with the optical axis
 (0 <= theta <= pi, so rays behind the image plane are allowed) and the azimuth
 ``phi = atan2(y, x)``. Its distorted radial distance in normalised image units is the odd
 polynomial of 003, eq. (13)::

@@ -42,7 +42,7 @@ Roll/pitch sensitivity (003 §4)
 -------------------------------
 Setup of 003 §4: "the vehicle is oriented horizontally and the camera is looking forward in a
 horizontal direction", horizon noise R = (1 px)^2, L = 300 px (eq. (36)), d = 0, H = 200 km,
-FOV 94.4 deg, "resolution 1080 px". The vehicle is a sounding rocket (CONVENTIONS.md: body x along
+FOV 94.4 deg, "resolution 1080 px". The vehicle is a sounding rocket (docs/conventions.md: body x along
 the longitudinal axis, the roll axis) lying horizontally with its nose north; its cameras look out
 sideways through the payload skin (ATEK: "on opposite sides of the payload"), so the camera that
 looks horizontally forward *for the camera* looks east, perpendicular to the roll axis

@@ -5,7 +5,7 @@ Parsing: ``pyarrow.csv`` (multi-threaded C++ parser; only the mapped columns are
 round-trip representation, as Python's ``repr`` and Arrow write it, comes back bit-identical);
 integer time columns stay int64 so integer nanoseconds are exact.
 
-Time bases (``mapping.TimeSpec``) -> int64 ns since the Unix epoch, UTC (CONVENTIONS.md "Time"):
+Time bases (``mapping.TimeSpec``) -> int64 ns since the Unix epoch, UTC (docs/conventions.md "Time"):
 
 * integer columns: ``t * ns_per_unit`` (exact);
 * float columns: whole and fractional parts scaled separately and rounded to the nanosecond; a

@@ -1,4 +1,4 @@
-"""Unit names accepted in mapping files and their factors to SI (CONVENTIONS.md "Units").
+"""Unit names accepted in mapping files and their factors to SI (docs/conventions.md "Units").
 
 Each quantity kind has a table ``name -> factor`` with ``value_SI = value * factor``. Names are
 matched case-sensitively after removing spaces and normalising ``²`` / ``s2`` to ``s^2``; a few common

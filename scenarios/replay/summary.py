@@ -18,7 +18,7 @@ DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
 
 
 def attitude_error(q_est, q_true) -> np.ndarray:
-    """psi (in e) from estimated to true attitude (CONVENTIONS), per sample [rad]."""
+    """psi (in e) from estimated to true attitude (docs/conventions.md), per sample [rad]."""
     return matrix_to_rotvec(quat_to_matrix(q_true) @ np.swapaxes(quat_to_matrix(q_est), -1, -2))
 
 

@@ -9,7 +9,7 @@ For a camera at azimuth ``a`` about x_b (from +y_b towards +z_b) with the radial
     x_c = y_c x z_c                            image right
 
 then rotated by ``rho`` about z_c. The true mount is ``R_bc = exp([psi_c x]) R_bc_nominal`` with the
-misalignment ``psi_c`` drawn per axis (003 eq. (50), CONVENTIONS "Rotations"). With the nose near the
+misalignment ``psi_c`` drawn per axis (003 eq. (50), docs/conventions.md "Rotations"). With the nose near the
 zenith during the coast and 20 deg depression, each optical axis points about 20 deg below the local
 horizontal; the horizon dips 15 deg at 230 km, so it crosses the image (003 figs. 9, 36).
 

@@ -601,7 +601,7 @@ def render_frame(camera: FisheyeCamera, R_ec, x_e, sun_e, moon_e=None, *, seed: 
     camera : FisheyeCamera
         Intrinsics (003 eqs. (13)-(16)).
     R_ec : (3, 3)
-        Camera attitude, camera frame c -> e (CONVENTIONS "Rotations").
+        Camera attitude, camera frame c -> e (docs/conventions.md "Rotations").
     x_e : (3,)
         Camera position in e [m] (above the ellipsoid).
     sun_e, moon_e : (3,)

@@ -11,7 +11,7 @@ milli-g, ``_ppm``, ``_mrad``). Every table and key is checked: an unknown key, a
 key, a wrong type or an out-of-range value raises :class:`scenarios.errors.UserError` naming the
 file and the dotted key (``atek.toml: imu.rate_hz = -20: expected > 0``).
 
-Body frame (CONVENTIONS "Frames"): x_b along the roll axis towards the nose; at lift-off y_b is
+Body frame (docs/conventions.md "Frames"): x_b along the roll axis towards the nose; at lift-off y_b is
 horizontal, pointing to the right of the launch azimuth (``y_b = unit(down x x_b)``; east for a launch
 to the north), and ``z_b = x_b x y_b`` (for a near-vertical launch: horizontal, towards the launch
 azimuth). ``launch.roll_deg`` rotates y_b and z_b about x_b. The cameras are placed by their azimuth

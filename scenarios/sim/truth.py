@@ -1,6 +1,6 @@
 """6-DOF truth of a sounding-rocket flight in the Earth-fixed frame e.
 
-Model (all in e, CONVENTIONS "Frames"; the navigation frame of 003 §6):
+Model (all in e, docs/conventions.md "Frames"; the navigation frame of 003 §6):
 
 * translation: ``dx/dt = v``, ``dv/dt = R_eb f_b + g_e(x) - 2 Omega_ie x v`` with ``g_e`` the J2
   gravitation plus centrifugal acceleration (:func:`nav.earth.gravity_e`) and the specific force

@@ -37,7 +37,7 @@ def mean_band(dof_total, count, p: float = 0.95):
 
 
 def attitude_errors(q_est, q_true) -> np.ndarray:
-    """psi (in e) from the estimated to the true attitude (CONVENTIONS "Rotations")."""
+    """psi (in e) from the estimated to the true attitude (docs/conventions.md "Rotations")."""
     return matrix_to_rotvec(quat_to_matrix(q_true) @ np.swapaxes(quat_to_matrix(q_est), -1, -2))
 
 

@@ -1,7 +1,7 @@
 """Navigation filter benchmarks: forward-filter speed on the 400 Hz atek-nav-grade flight
 with GPS and both cameras' vectors, ratio to pyins on the same data, smoother time, accuracy on
 atek with 003's tuning (1 deg and 0.05 deg camera misalignment), and the Monte Carlo NEES band
-fraction. Wall-clock figures are recorded, never asserted (CONVENTIONS "Measuring")."""
+fraction. Wall-clock figures are recorded, never asserted (docs/conventions.md "Measuring")."""
 from __future__ import annotations
 
 import logging
