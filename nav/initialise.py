@@ -34,7 +34,7 @@ from nav.earth import OMEGA_E, OMEGA_IE_E, R_en, ecef_to_geodetic, gravitation_e
 from nav.ephemeris import sun_position_e
 from nav.measurements import target_direction_e
 from nav.navigator import NS, GpsData, ImuData, InitialState, VectorData
-from nav.rotation import matrix_to_quat, quat_to_matrix, triad
+from nav.rotation import euler_zyx_deg, matrix_to_quat, quat_to_matrix, triad
 
 #: 003 §7.4: initial attitude uncertainty per axis (1 sigma).
 INIT_ATT_SIGMA = math.radians(2.0)
@@ -214,11 +214,7 @@ def euler_to_q_eb(roll_deg: float, pitch_deg: float, heading_deg: float, x_e) ->
 def q_eb_to_euler(q_eb, x_e) -> tuple[float, float, float]:
     """Roll, pitch, heading [deg] in NED at ``x_e`` of the attitude ``q_eb`` (inverse of
     :func:`euler_to_q_eb`; heading in [0, 360))."""
-    R = _R_en_at(x_e).T @ quat_to_matrix(q_eb)
-    roll = math.degrees(math.atan2(R[2, 1], R[2, 2]))
-    pitch = math.degrees(math.asin(float(np.clip(-R[2, 0], -1.0, 1.0))))
-    heading = math.degrees(math.atan2(R[1, 0], R[0, 0])) % 360.0
-    return roll, pitch, heading
+    return tuple(float(a) for a in euler_zyx_deg(_R_en_at(x_e).T @ quat_to_matrix(q_eb)))
 
 
 def launcher_alignment(azimuth_deg: float, elevation_deg: float, x_e, *, roll_deg: float | None = None,

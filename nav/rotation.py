@@ -181,3 +181,12 @@ def triad(v1_b, v2_b, v1_r, v2_r, *, min_angle_deg: float = 1.0) -> np.ndarray:
         return np.stack([u, t2, np.cross(u, t2)], axis=-1)
 
     return frame(r1, r2) @ np.swapaxes(frame(b1, b2), -1, -2)
+
+
+def euler_zyx_deg(R_nb) -> tuple:
+    """Roll, pitch, heading [deg] of body -> north-east-down rotations ``R_nb`` (..., 3, 3) in the
+    z-y-x convention (heading about down, then pitch, then roll); heading in [0, 360)."""
+    roll = np.degrees(np.arctan2(R_nb[..., 2, 1], R_nb[..., 2, 2]))
+    pitch = np.degrees(-np.arcsin(np.clip(R_nb[..., 2, 0], -1.0, 1.0)))
+    heading = np.degrees(np.arctan2(R_nb[..., 1, 0], R_nb[..., 0, 0])) % 360.0
+    return roll, pitch, heading

@@ -22,16 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from nav import earth
-from nav.rotation import quat_to_matrix
-
-
-def euler_zyx_deg(R_nb) -> tuple:
-    """Roll, pitch, heading [deg] of body -> north-east-down rotations ``R_nb`` (..., 3, 3) in the
-    z-y-x convention (heading about down, then pitch, then roll); heading in [0, 360)."""
-    roll = np.degrees(np.arctan2(R_nb[..., 2, 1], R_nb[..., 2, 2]))
-    pitch = np.degrees(-np.arcsin(np.clip(R_nb[..., 2, 0], -1.0, 1.0)))
-    heading = np.degrees(np.arctan2(R_nb[..., 1, 0], R_nb[..., 0, 0])) % 360.0
-    return roll, pitch, heading
+from nav.rotation import euler_zyx_deg, quat_to_matrix
 
 
 def solution_frame(t_ns, t_plus_s, x_e, v_e, q_eb, P_diag, layout):
