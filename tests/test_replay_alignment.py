@@ -77,3 +77,7 @@ def test_state_file_with_roll_pitch_heading_or_launcher(plane_log, tmp_path):
     bad.write_text("pitch_deg = 1.0\n")
     with pytest.raises(UserError, match="missing key 'roll_deg'"):
         navigate(log, init=bad, smoother=False)
+    both = tmp_path / "both.toml"
+    both.write_text("q_eb = [0.0, 0.0, 0.0, 1.0]\nroll_deg = 0.0\npitch_deg = 0.0\nheading_deg = 0.0\n")
+    with pytest.raises(UserError, match=r"attitude is given twice \(q_eb and roll/pitch/heading\)"):
+        navigate(log, init=both, smoother=False)

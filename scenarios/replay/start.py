@@ -195,6 +195,12 @@ def _given_attitude(d: dict, x_e, imu, i: int, what: str) -> np.ndarray:
     elevation with the roll given or from the accelerometer over the first second at rest
     (:func:`nav.initialise.launcher_alignment`)."""
     from nav.initialise import euler_to_q_eb, launcher_alignment
+    forms = [name for name, keys in (("q_eb", {"q_eb"}), ("roll/pitch/heading", {"pitch_deg", "heading_deg"}),
+                                     ("launcher", {"launcher_azimuth_deg", "launcher_elevation_deg"}))
+             if keys & set(d)]
+    if len(forms) > 1:
+        raise UserError(f"{what}: the attitude is given twice ({' and '.join(forms)}); give one of: "
+                        f"{'; '.join(_ATTITUDE_KEYS)}")
     try:
         if "q_eb" in d:
             return np.asarray(d["q_eb"], float)
