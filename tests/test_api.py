@@ -95,8 +95,12 @@ def test_readme_example(vlog, tmp_path, monkeypatch):
                         r"\d+ used, \d+ rejected\)", repr(sol)), repr(sol)
     assert repr(sm) == f"Smoothed(T+60.0 .. T+140.0 s, {len(sol.nav.cov_t_ns)} epochs, init triad)"
     cols = ["t_ns", "t_plus_s", "lat", "lon", "height", "x", "y", "z", "vx", "vy", "vz", "VN", "VE", "VD",
-            "roll", "pitch", "heading", "x_sd", "y_sd", "z_sd", "pos_sd", "vx_sd", "vy_sd", "vz_sd", "vel_sd",
-            "psi_x_sd", "psi_y_sd", "psi_z_sd", "att_sd"]
+            "qx", "qy", "qz", "qw", "roll", "pitch", "heading", "x_sd", "y_sd", "z_sd", "pos_sd", "vx_sd", "vy_sd",
+            "vz_sd", "vel_sd", "psi_x_sd", "psi_y_sd", "psi_z_sd", "att_sd", "N_sd", "E_sd", "D_sd", "VN_sd",
+            "VE_sd", "VD_sd", "roll_sd", "pitch_sd", "heading_sd"]
+    # the estimated states of the default tuning with two cameras: accelerometer bias and the
+    # cameras' misalignments, each with its 1-sigma
+    cols += [f"{g}_{a}{sd}" for g in ("accel_bias", "psi_c_1", "psi_c_2") for a in "xyz" for sd in ("", "_sd")]
     for f in (df, fwd):
         assert list(f.columns) == cols
         assert len(f) == len(sol.nav.cov_t_ns) and f.index.name == "time" and str(f.index.tz) == "UTC"
