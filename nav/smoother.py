@@ -204,9 +204,7 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Pn, Ps, k_start)
                 Ps[a, b] = v
                 Ps[b, a] = v
             Pd[k, a] = Ps[a, a]
-        for a in range(9):
-            for b in range(9):
-                Pn[k, a, b] = Ps[a, b]
+        Pn[k] = Ps[:9, :9]
     return -1
 
 
