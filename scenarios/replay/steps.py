@@ -551,6 +551,8 @@ def navigate(flight: Flight, *, tuning=None, init="auto", vectors=None, smoother
         start = initialise(flight, sight, init=init, hooks=hooks, wording=wording)
     if start.alignment is not None:     # the filter starts with the alignment's attitude sigma
         tuning = tuning.with_(init_att_sigma=max(tuning.init_att_sigma, start.alignment.att_sigma))
+    if start.vel_sigma is not None:     # and with the sigma of a velocity from position-only fixes
+        tuning = tuning.with_(init_vel_sigma=max(tuning.init_vel_sigma, start.vel_sigma))
     with hooks.in_stage("filter"):
         try:
             res = navigator.run(flight.imu, start.state, tuning, gps=flight.gps, vectors=sight.vectors,
