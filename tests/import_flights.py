@@ -92,7 +92,8 @@ def rocket_tables(d: Path, seed: int = 3, duration: float = 120.0):
     return fl
 
 
-def _R_nb(roll, pitch, yaw):
+def R_nb_zyx(roll, pitch, yaw):
+    """Body -> north-east-down rotation of z-y-x Euler angles [rad], written out element by element."""
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
     R = np.empty(roll.shape + (3, 3))
     R[..., 0, 0] = cp * cy
@@ -126,7 +127,7 @@ def plane_truth(duration=180.0, rate=100.0):
     x = earth.geodetic_to_ecef(lat, lon, h0 - dn[:, 2])
     v = np.gradient(x, h, axis=0)
     a = np.gradient(v, h, axis=0)
-    R_eb = earth.R_en(lat, lon) @ _R_nb(roll, pitch, yaw)
+    R_eb = earth.R_en(lat, lon) @ R_nb_zyx(roll, pitch, yaw)
     f_e = a - earth.gravity_e(x) + 2.0 * np.cross(earth.OMEGA_IE_E, v)
     f_b = np.einsum("nji,nj->ni", R_eb, f_e)
     dR = np.einsum("nji,njk->nik", R_eb[:-2], R_eb[2:])      # R_b(t-h) b(t+h)
@@ -154,7 +155,7 @@ def plane_tables(d: Path, seed: int = 1, duration: float = 180.0, sensor_R=None)
 
 
 __all__ = ["T0", "LIFTOFF", "mapping", "rocket_tables", "plane_tables", "plane_truth", "write_csv",
-           "gps_columns", "imu_columns", "quat_to_matrix"]
+           "gps_columns", "imu_columns", "quat_to_matrix", "R_nb_zyx", "sample_tables"]
 
 
 #: the sample of scenarios/library/import/sample/ (README "What a user runs"): its start (GPS week

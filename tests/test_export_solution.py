@@ -14,6 +14,8 @@ import pandas as pd
 import pymap3d
 import pytest
 
+from tests.import_flights import R_nb_zyx
+
 from nav.rotation import quat_to_matrix, rotvec_to_matrix
 from scenarios.cli import main
 from scenarios.flightlog.reader import read_log
@@ -136,14 +138,8 @@ def test_geodetic_ned_and_euler_columns(exported):
     q = df[["qx", "qy", "qz", "qw"]].to_numpy()
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
     r, p, y = (np.radians(df[c].to_numpy()) for c in ("roll", "pitch", "heading"))
-    Rz = np.stack([np.stack([np.cos(y), -np.sin(y), 0 * y], -1), np.stack([np.sin(y), np.cos(y), 0 * y], -1),
-                   np.stack([0 * y, 0 * y, 1 + 0 * y], -1)], -2)
-    Ry = np.stack([np.stack([np.cos(p), 0 * p, np.sin(p)], -1), np.stack([0 * p, 1 + 0 * p, 0 * p], -1),
-                   np.stack([-np.sin(p), 0 * p, np.cos(p)], -1)], -2)
-    Rx = np.stack([np.stack([1 + 0 * r, 0 * r, 0 * r], -1), np.stack([0 * r, np.cos(r), -np.sin(r)], -1),
-                   np.stack([0 * r, np.sin(r), np.cos(r)], -1)], -2)
     R_ne = np.stack([np.stack(pymap3d.ecef2nedv(*np.eye(3)[i], lat, lon), -1) for i in range(3)], -1)
-    np.testing.assert_allclose(R_ne @ quat_to_matrix(q), Rz @ Ry @ Rx, atol=1e-9)
+    np.testing.assert_allclose(R_ne @ quat_to_matrix(q), R_nb_zyx(r, p, y), atol=1e-9)
     # NED sigmas: the 3x3 blocks rotated with pymap3d's rotation
     P = res.P_nav
     for b, cols in ((0, ["N_sd", "E_sd", "D_sd"]), (1, ["VN_sd", "VE_sd", "VD_sd"])):
