@@ -221,10 +221,9 @@ def sensor_table(s: dict) -> list:
 
 
 def verdict_lines(v: dict) -> list:
-    """The verdict as the summary's last lines: notes, then ``verdict: STATUS: reasons``."""
-    L = [""] + [f"  note: {n}" for n in v["notes"]]
-    if len(v["reasons"]) > 1:
-        L += [f"  {v['status']}: {r}" for r in v["reasons"]]
+    """The verdict as the summary's last lines: notes, with FAILED the findings that alone would
+    make it DEGRADED, then ``verdict: STATUS: reasons``."""
+    L = [""] + [f"  note: {n}" for n in v["notes"]] + [f"  also: {r}" for r in v.get("also", [])]
     L.append(f"verdict: {v['status']}" + (f": {'; '.join(v['reasons'])}" if v["reasons"] else ""))
     return L
 

@@ -45,6 +45,7 @@ NIS_GROSS_P = 1e-6          #: one-sided probability of the gross NIS limit of a
 NIS_GROSS_FACTOR = 2.0      #: ... and at least this multiple of m (the mean's expectation)
 NIS_DEGRADED_FACTOR = 1.25  #: a mean above the 95 % band and above this multiple of m -> DEGRADED
 VISION_REJECTED_DEGRADED = 0.2  #: share of a camera target's vectors rejected -> DEGRADED
+VISION_REJECTED_FAIL, VISION_MIN = 0.5, 20  #: share of all camera vectors (at least VISION_MIN) rejected -> FAILED
 GPS_OUTAGE_DEGRADED_S = 10.0    #: a GPS outage longer than this -> DEGRADED
 POS_SIGMA_FAIL_M = 100.0    #: position 1 sigma (largest axis) at the end of the flight above this -> FAILED
 STEP_SIGMAS = 6.0           #: a GPS step: the track's residual beyond this many of its sigmas
@@ -56,14 +57,15 @@ STEP_BEFORE_RECOVERY_S = 30.0   #: a step this long before a divergence recovery
 
 @dataclass
 class Verdict:
-    """OK, DEGRADED or FAILED with the reasons (``reasons``: what made the status, FAILED reasons
-    first; ``notes``: observations that do not change it) and the statistics it was judged on
-    (:func:`statistics`)."""
+    """OK, DEGRADED or FAILED with the reasons (``reasons``: what made the status; ``also``: with
+    FAILED, the DEGRADED findings; ``notes``: observations that do not change it) and the
+    statistics it was judged on (:func:`statistics`)."""
 
     status: str
     reasons: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     statistics: dict = field(default_factory=dict)
+    also: list = field(default_factory=list)    #: with FAILED: what alone would make the run DEGRADED
 
     def exit_code(self, strict: bool = False) -> int:
         """0 for OK and DEGRADED, 3 for FAILED; with ``strict`` DEGRADED gives 4."""
@@ -78,13 +80,15 @@ class Verdict:
         return f"verdict: {self.status}" + (": " + "; ".join(self.reasons) if self.reasons else "")
 
     def to_dict(self) -> dict:
-        return {"status": self.status, "reasons": list(self.reasons), "notes": list(self.notes)}
+        return {"status": self.status, "reasons": list(self.reasons), "also": list(self.also),
+                "notes": list(self.notes)}
 
     def metadata(self) -> dict:
         """The solution log's metadata record ``horizon-nav.verdict`` (str values; the lists as
         JSON)."""
         import json
-        return {"status": self.status, "reasons": json.dumps(self.reasons), "notes": json.dumps(self.notes)}
+        return {"status": self.status, "reasons": json.dumps(self.reasons), "also": json.dumps(self.also),
+                "notes": json.dumps(self.notes)}
 
     def __repr__(self) -> str:
         return f"Verdict({self.line().removeprefix('verdict: ')})"
@@ -304,8 +308,9 @@ def _failed(s: dict) -> list:
                    f"{ar['rejected']} of {ar['offered']} blocks")
     div = [r for r in s["recoveries"] if r["reason"] == "divergence"]
     if len(div) >= DIVERGENCES_FAIL:
-        out.append(f"the filter diverged {len(div)} times (recoveries at "
-                   + ", ".join(f"T+{r['tplus_s']:.1f}" for r in div) + " s): the IMU and the GPS disagree")
+        out.append(f"the filter diverged {len(div)} times (re-initialised at "
+                   + ", ".join(f"T+{r['tplus_s']:.1f}" for r in div[:3]) + (", ..." if len(div) > 3 else "")
+                   + " s): the IMU and the GPS disagree")
     for r in div:
         st = [p for p in s["gps_steps"] if 0 <= r["t_ns"] - p["t_ns"] <= STEP_BEFORE_RECOVERY_S * NS]
         if st:
@@ -313,6 +318,10 @@ def _failed(s: dict) -> list:
             out.append(f"the GPS track steps by {p['size_m']:.0f} m at T+{p['tplus_s']:.1f} s ({p['sigmas']:.0f} sigma; "
                        f"its velocity does not explain it) and the filter re-initialised onto the fixes after it at "
                        f"T+{r['tplus_s']:.1f} s: the fixes before or after the step are wrong")
+    vis = [d for d in sens.values() if d["kind"] not in GPS_KINDS]
+    n_vis, a_vis = sum(d["offered"] for d in vis), sum(d["accepted"] for d in vis)
+    if n_vis >= VISION_MIN and n_vis - a_vis > VISION_REJECTED_FAIL * n_vis:
+        out.append(f"{n_vis - a_vis} of {n_vis} camera vectors rejected: the attitude and the cameras disagree")
     ps = s["position_sigma_m"]
     if ps["final"] > POS_SIGMA_FAIL_M:
         out.append(f"position sigma at the end {ps['final']:.0f} m (> {POS_SIGMA_FAIL_M:.0f} m): the position is not "
@@ -328,11 +337,14 @@ def _degraded(s: dict) -> tuple:
     other = [w for w in s["warnings"] if "truncated" not in w and "damaged" not in w]
     if other:
         out.append(f"{len(other)} input warning(s): " + other[0] + (" ..." if len(other) > 1 else ""))
-    for r in s["recoveries"]:
+    rec = s["recoveries"]
+    for r in rec[:3]:
         d = r["details"]
         what = f"{d['gap_s']:.1f} s IMU gap" if "gap_s" in d else f"{d.get('gated_fixes', '?')} gated GPS fixes"
-        out.append(f"recovered at T+{r['tplus_s']:.1f} s ({r['reason']}: {what}; position moved "
+        out.append(f"re-initialised from GPS at T+{r['tplus_s']:.1f} s ({r['reason']}: {what}; position moved "
                    f"{d.get('position_jump_m', float('nan')):.1f} m)")
+    if len(rec) > 3:
+        out.append(f"{len(rec) - 3} more re-initialisations, the last at T+{rec[-1]['tplus_s']:.1f} s")
     g = s["imu_gaps"]
     if g["count"]:
         out.append(f"{g['count']} IMU gap(s) over {g['threshold_s']:g} s, longest {g['longest_s']:.2f} s")
@@ -368,7 +380,7 @@ def judge(stats: dict) -> Verdict:
     failed = _failed(stats)
     degraded, notes = _degraded(stats)
     if failed:
-        return Verdict("FAILED", failed + degraded, notes, stats)
+        return Verdict("FAILED", failed, notes, stats, degraded)
     return Verdict("DEGRADED" if degraded else "OK", degraded, notes, stats)
 
 
