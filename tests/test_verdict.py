@@ -64,5 +64,126 @@ def _replay(log, d, capsys, *extra):
                *extra, "--json", str(js)])
     out = capsys.readouterr()
     s = json.loads(js.read_text()) if js.exists() else None
-    print(out.out[-3000:])
     return rc, out.out, out.err, s
+
+
+def _window_fixes(fl, t_end=DURATION):
+    """GPS fixes of the simulated flight in the replay's window (T+60, the first camera frame, to t_end)."""
+    return int(np.sum((fl.gps.t >= 60.0 - 1e-9) & (fl.gps.t <= t_end + 1e-9)))
+
+
+def _logged(sol_path, source):
+    """(used, NIS) of ``source`` in the solution log's /nav/measurements: the record the verdict
+    is checked against, read back independently of the summary."""
+    m = read_log(sol_path).measurements
+    sel = np.asarray(m.source).astype(str) == source
+    return np.asarray(m.used, bool)[sel], np.asarray(m.nis, float)[sel]
+
+
+def test_clean_flight_is_ok(flights, capsys):
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["clean"], d, capsys)
+    assert rc == 0 and s["exit_code"] == 0
+    assert s["verdict"]["status"] == "OK" and s["verdict"]["reasons"] == []
+    assert out.rstrip().splitlines()[-1] == "verdict: OK"
+    n = _window_fixes(fl)
+    used, nis = _logged(d / "clean.solution.mcap", "gps/position")
+    for src, dof in (("gps/position", 3), ("gps/velocity", 3)):
+        g = s["sensors"][src]
+        assert g["offered"] == n and g["accepted"] == n and g["rejected"] == {}
+        # the band of the mean of N chi-square(3) values: chi2(3N) / N, from scipy
+        lo, hi = chi2.ppf([0.025, 0.975], dof * n) / n
+        assert np.allclose(g["nis"]["band95"], [lo, hi], rtol=1e-9)
+        # a consistent filter: inside the 1e-4 two-sided band (the velocity NIS of this filter sits
+        # at the 95 % band's lower edge, conservative; the position NIS inside it)
+        lo4, hi4 = chi2.ppf([1e-4, 1 - 1e-4], dof * n) / n
+        assert lo4 < g["nis"]["mean"] < hi4, (src, g["nis"]["mean"], lo4, hi4)
+    assert lo < s["sensors"]["gps/position"]["nis"]["mean"] < hi
+    assert used.all() and used.size == n and np.isclose(nis.mean(), s["sensors"]["gps/position"]["nis"]["mean"])
+    for k in (1, 2):    # the truth-derived vectors: every frame from T+60, one per second
+        assert s["sensors"][f"camera_{k}/earth"]["accepted"] == int(DURATION - 60) + 1
+    assert s["imu_gaps"]["count"] == 0 and s["recoveries"] == [] and s["warnings"] == []
+    assert s["position_sigma_m"]["final"] < 1.0     # 3 m fixes at 10 Hz with 0.1 m/s velocities
+    meta = read_log(d / "clean.solution.mcap").metadata["horizon-nav.verdict"]
+    assert meta["status"] == "OK" and json.loads(meta["reasons"]) == []
+
+
+def test_truncated_log_is_degraded_and_says_so(flights, capsys):
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["truncated"], d, capsys)
+    size = logs["truncated"].stat().st_size
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED" and s["truncated"]
+    warn = [w for w in s["warnings"] if "truncated or damaged" in w]
+    assert len(warn) == 1 and f" of {size};" in warn[0]
+    assert f"WARNING: {warn[0]}" in out                      # on the terminal
+    assert s["verdict"]["reasons"][0] == "input truncated: " + warn[0]
+    assert out.rstrip().splitlines()[-1].startswith("verdict: DEGRADED: input truncated: ")
+    # the solution ends where the log was cut, before the flight's end
+    t_end = s["window_tplus_s"][1]
+    assert 60.0 < t_end < DURATION / 2 + 10
+    g = s["sensors"]["gps/position"]
+    assert g["offered"] == _window_fixes(fl, t_end) and g["accepted"] == g["offered"]
+    rc, *_ = _replay(logs["truncated"], d, capsys, "--strict")
+    assert rc == 4
+    # JSON on stdout: the warning still reaches the terminal, on stderr
+    rc = main(["replay", str(logs["truncated"]), "-o", str(d / "t2.solution.mcap"), "--no-smoother", "--no-rerun",
+               "--json", "-"])
+    o = capsys.readouterr()
+    assert rc == 0 and json.loads(o.out)["verdict"]["status"] == "DEGRADED"
+    assert "horizon-nav replay: warning: " + warn[0] in o.err
+
+
+@pytest.mark.parametrize("name,step_m", [("offset", 3000.0), ("other", None)])
+def test_gps_corrupted_after_mid_flight_fails(flights, capsys, name, step_m):
+    """The GPS jumps at T_BREAK (3 km north; or to another flight's fixes). The filter gates the
+    new fixes, re-initialises onto them after 10 (a divergence recovery) and then follows them:
+    the trajectory from T_BREAK on is wrong by the jump. The verdict sees the step in the GPS
+    track that the GPS velocity does not explain, followed by that recovery."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs[name], d, capsys)
+    assert rc == 3 and s["exit_code"] == 3 and s["verdict"]["status"] == "FAILED"
+    assert out.rstrip().splitlines()[-1].startswith("verdict: FAILED: the GPS track steps by")
+    steps = s["gps_steps"]
+    assert len(steps) == 1 and abs(steps[0]["tplus_s"] - T_BREAK) < 1e-6
+    if step_m is not None:   # 3 km plus the fixes' noise (3 m per axis)
+        assert abs(steps[0]["size_m"] - step_m) < 30.0
+    rec = s["recoveries"]
+    assert len(rec) == 1 and rec[0]["reason"] == "divergence" and 0 < rec[0]["tplus_s"] - T_BREAK < 2.0
+    assert rec[0]["details"]["position_jump_m"] > 0.9 * steps[0]["size_m"]
+    # never exit code 0, strict or not
+    assert _replay(logs[name], d, capsys, "--strict")[0] == 3
+
+
+def test_most_gps_rejected_fails(flights, capsys):
+    """NED velocity written as ECEF: the velocity blocks are gated, the filter re-initialises again
+    and again; over half of the GPS is rejected."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["ned_as_ecef"], d, capsys)
+    assert rc == 3 and s["verdict"]["status"] == "FAILED"
+    n = _window_fixes(fl)
+    for src in ("gps/position", "gps/velocity"):
+        used, _ = _logged(d / "ned.solution.mcap", src)
+        g = s["sensors"][src]
+        assert g["offered"] == used.size == n and g["accepted"] == int(used.sum())
+        assert g["rejected_share"] == pytest.approx(1 - used.mean()) and g["rejected_share"] > 0.5
+    assert any(r.startswith("gps/velocity: ") and "fixes rejected" in r for r in s["verdict"]["reasons"])
+    assert len(s["recoveries"]) >= 2
+    meta = read_log(d / "ned.solution.mcap").metadata["horizon-nav.verdict"]
+    assert meta["status"] == "FAILED" and json.loads(meta["reasons"]) == s["verdict"]["reasons"]
+
+
+def test_python_api_exposes_the_verdict(flights):
+    import scenarios
+    logs, _, _ = flights
+    ok = scenarios.navigate(scenarios.read_flight(logs["clean"]), smoother=False)
+    bad = scenarios.navigate(scenarios.read_flight(logs["offset"]), smoother=False)
+    assert ok.verdict.status == "OK" and ok.verdict.exit_code() == 0
+    assert bad.verdict.status == "FAILED" and bad.verdict.exit_code() == 3 and bad.verdict.reasons
+    assert bad.verdict.statistics["gps_steps"][0]["size_m"] > 2900.0
+
+
+def test_nis_band_and_gross_limit_against_scipy():
+    from scenarios.replay.verdict import gross_limit, mean_band
+    for n, m in ((1, 2), (10, 3), (1401, 3), (20000, 2)):
+        assert np.allclose(mean_band(n, m), chi2.ppf([0.025, 0.975], n * m) / n, rtol=1e-9)
+        assert gross_limit(n, m) == pytest.approx(max(chi2.ppf(1 - 1e-6, n * m) / n, 2.0 * m), rel=1e-9)

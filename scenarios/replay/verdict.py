@@ -311,13 +311,17 @@ def _failed(s: dict) -> list:
         out.append(f"the filter diverged {len(div)} times (re-initialised at "
                    + ", ".join(f"T+{r['tplus_s']:.1f}" for r in div[:3]) + (", ..." if len(div) > 3 else "")
                    + " s): the IMU and the GPS disagree")
+    followed = {}
     for r in div:
-        st = [p for p in s["gps_steps"] if 0 <= r["t_ns"] - p["t_ns"] <= STEP_BEFORE_RECOVERY_S * NS]
-        if st:
-            p = max(st, key=lambda p: p["size_m"])
-            out.append(f"the GPS track steps by {p['size_m']:.0f} m at T+{p['tplus_s']:.1f} s ({p['sigmas']:.0f} sigma; "
-                       f"its velocity does not explain it) and the filter re-initialised onto the fixes after it at "
-                       f"T+{r['tplus_s']:.1f} s: the fixes before or after the step are wrong")
+        for p in s["gps_steps"]:
+            if 0 <= r["t_ns"] - p["t_ns"] <= STEP_BEFORE_RECOVERY_S * NS:
+                followed.setdefault(p["t_ns"], (p, r))
+    if followed:
+        p, r = max(followed.values(), key=lambda pr: pr[0]["size_m"])
+        more = f" ({len(followed) - 1} more such steps)" if len(followed) > 1 else ""
+        out.append(f"the GPS track steps by {p['size_m']:.0f} m at T+{p['tplus_s']:.1f} s ({p['sigmas']:.0f} sigma; "
+                   f"its velocity does not explain it) and the filter re-initialised onto the fixes after it at "
+                   f"T+{r['tplus_s']:.1f} s{more}: the fixes before or after the step are wrong")
     vis = [d for d in sens.values() if d["kind"] not in GPS_KINDS]
     n_vis, a_vis = sum(d["offered"] for d in vis), sum(d["accepted"] for d in vis)
     if n_vis >= VISION_MIN and n_vis - a_vis > VISION_REJECTED_FAIL * n_vis:
