@@ -245,7 +245,7 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
     t_tail = _tail_start(recs, a, b)
     sensors = {src: _source_stats(d, t_tail, a, b) for src, d in sorted(recs.items())}
     imu_gap = gaps(res.t_ns, a, b, tuning.max_imu_gap_s)
-    imu_gap["recovery_threshold_s"] = gap_threshold_s(res.t_ns, tuning)
+    imu_gap["recovery_threshold_s"] = gap_threshold_s((res.t_ns - a) / NS, tuning)
     warnings = list(getattr(inputs, "notes", []))
     for k, what in (("imu_nonfinite", "non-finite"), ("imu_saturated", "saturated"),
                     ("imu_time_not_increasing", "not increasing in time")):
