@@ -102,7 +102,7 @@ def test_clean_flight_is_ok(flights, capsys):
     assert used.all() and used.size == n and np.isclose(nis.mean(), s["sensors"]["gps/position"]["nis"]["mean"])
     for k in (1, 2):    # the truth-derived vectors: every frame from T+60, one per second
         assert s["sensors"][f"camera_{k}/earth"]["accepted"] == int(DURATION - 60) + 1
-    assert s["imu_gaps"]["count"] == 0 and s["recoveries"] == [] and s["warnings"] == []
+    assert s["imu_gaps"]["count"] == 0 and s["recoveries"] == [] and s["warnings"] == [] and s["gps_steps"] == []
     assert s["position_sigma_m"]["final"] < 1.0     # 3 m fixes at 10 Hz with 0.1 m/s velocities
     meta = read_log(d / "clean.solution.mcap").metadata["horizon-nav.verdict"]
     assert meta["status"] == "OK" and json.loads(meta["reasons"]) == []

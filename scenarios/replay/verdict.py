@@ -48,7 +48,7 @@ VISION_REJECTED_DEGRADED = 0.2  #: share of a camera target's vectors rejected -
 VISION_REJECTED_FAIL, VISION_MIN = 0.5, 20  #: share of all camera vectors (at least VISION_MIN) rejected -> FAILED
 GPS_OUTAGE_DEGRADED_S = 10.0    #: a GPS outage longer than this -> DEGRADED
 POS_SIGMA_FAIL_M = 100.0    #: position 1 sigma (largest axis) at the end of the flight above this -> FAILED
-STEP_SIGMAS = 6.0           #: a GPS step: the track's residual beyond this many of its sigmas
+STEP_SIGMAS = 6.0           #: a GPS step: the track's residual beyond this many of its sigmas per axis
 STEP_JERK = 1000.0          #: jerk allowance [m/s^3] of the trapezoidal track prediction (position + velocity)
 STEP_ACCEL = 200.0          #: acceleration allowance [m/s^2] of the linear prediction (position only)
 STEP_MAX_DT_S = 2.0         #: pairs of fixes further apart are not compared
@@ -159,7 +159,9 @@ def gps_steps(gps) -> list:
     """Steps of the GPS track that its velocity does not explain: for consecutive fixes less than
     STEP_MAX_DT_S apart, the residual of the trapezoidal prediction ``x_i - x_{i-1} - (v_i +
     v_{i-1}) dt / 2`` (position-only fixes: of the linear prediction from the two fixes before)
-    beyond STEP_SIGMAS of its sigma (the fixes' covariances and a jerk or acceleration allowance).
+    beyond STEP_SIGMAS of its sigma per axis (from the fixes' covariances, plus a jerk or
+    acceleration allowance): for white fixes the squared ratio is chi-square with 3 degrees of
+    freedom, exceeded at 6 sigma with probability 7.5e-8 per pair.
     Returns ``[(t_ns, size_m, sigmas)]`` at the fix after the step."""
     if gps is None or len(gps.t_ns) < 3:
         return []
@@ -172,18 +174,19 @@ def gps_steps(gps) -> list:
     trV = np.trace(np.asarray(gps.P_v, float), axis1=1, axis2=2) if has_v else np.full(t.size, np.nan)
     with np.errstate(invalid="ignore"):
         res = x[1:] - x[:-1] - 0.5 * (v[1:] + v[:-1]) * dt[:, None]
-        var = trP[1:] + trP[:-1] + 0.25 * dt ** 2 * (trV[1:] + trV[:-1]) + (STEP_JERK * dt ** 3 / 12.0) ** 2
+        var = (trP[1:] + trP[:-1] + 0.25 * dt ** 2 * (trV[1:] + trV[:-1])) / 3.0 + (STEP_JERK * dt ** 3 / 12.0) ** 2
         # position only: x_i - x_{i-1} - r (x_{i-1} - x_{i-2}), r = dt_i / dt_{i-1}
-        r = np.concatenate([[np.nan], dt[1:] / dt[:-1]])
+        dt_prev = np.concatenate([[np.nan], dt[:-1]])
+        r = dt / dt_prev
         xm2 = np.vstack([np.full((1, 3), np.nan), x[:-2]])
         res_p = x[1:] - x[:-1] - r[:, None] * (x[:-1] - xm2)
-        var_p = (trP[1:] + (1 + r) ** 2 * trP[:-1] + r ** 2 * np.concatenate([[np.nan], trP[:-2]])
-                 + (STEP_ACCEL * dt * (dt + np.concatenate([[np.nan], dt[:-1]])) / 2.0) ** 2)
+        var_p = ((trP[1:] + (1 + r) ** 2 * trP[:-1] + r ** 2 * np.concatenate([[np.nan], trP[:-2]])) / 3.0
+                 + (STEP_ACCEL * dt * (dt + dt_prev) / 2.0) ** 2)
         use_v = np.all(np.isfinite(res), axis=1) & np.isfinite(var)
         res = np.where(use_v[:, None], res, res_p)
         var = np.where(use_v, var, var_p)
         size = np.linalg.norm(res, axis=1)
-        k = size / np.sqrt(var)
+        k = size / np.sqrt(var)       # in sigmas per axis: k^2 is chi-square(3) for white fixes
         hit = np.isfinite(k) & (k > STEP_SIGMAS) & (dt <= STEP_MAX_DT_S)
     return [(int(t[i + 1]), float(size[i]), float(k[i])) for i in np.flatnonzero(hit)]
 
