@@ -187,3 +187,40 @@ def test_nis_band_and_gross_limit_against_scipy():
     for n, m in ((1, 2), (10, 3), (1401, 3), (20000, 2)):
         assert np.allclose(mean_band(n, m), chi2.ppf([0.025, 0.975], n * m) / n, rtol=1e-9)
         assert gross_limit(n, m) == pytest.approx(max(chi2.ppf(1 - 1e-6, n * m) / n, 2.0 * m), rel=1e-9)
+
+
+def test_gps_step_detector_on_a_synthetic_track():
+    """A straight 1.8 km/s track at 10 Hz with 3 m / 0.1 m/s white noise and a step from fix 300
+    on. With velocities, 40 m is one step at fix 300 (against a per-axis sigma of sqrt(2 x 9) =
+    4.2 m: 9.4 sigma); position only (per-axis sigma sqrt((9 + 4 x 9 + 9) ... ) = 7.6 m with the
+    acceleration allowance), 80 m shows in the predictions of fixes 300 and 301 (10.5 sigma).
+    Nothing else is a step (per pair chi-square(3) > 36: 7.5e-8, 600 pairs)."""
+    from types import SimpleNamespace
+    from scenarios.replay.verdict import gaps, gps_steps
+    rng = np.random.default_rng(4)
+    n, dt = 600, 0.1
+    t = np.arange(n) * dt
+    t_ns = (t * 1e9).astype(np.int64)
+    v = np.tile([1800.0, 200.0, -50.0], (n, 1))
+    x = 4.0e6 + t[:, None] * v + rng.normal(0, 3.0, (n, 3))
+    vm = v + rng.normal(0, 0.1, (n, 3))
+    P_x, P_v = np.tile(9.0 * np.eye(3), (n, 1, 1)), np.tile(0.01 * np.eye(3), (n, 1, 1))
+    for step, vel, at in ((40.0, True, [300]), (80.0, False, [300, 301])):
+        xs = x.copy()
+        xs[300:] += [0.0, step, 0.0]
+        found = gps_steps(SimpleNamespace(t_ns=t_ns, x_e=xs, P_x=P_x, v_e=vm if vel else None,
+                                          P_v=P_v if vel else None))
+        assert [s[0] for s in found] == [t_ns[i] for i in at], found
+        assert abs(found[0][1] - step) < 4 * (4.2 if vel else 7.6)
+    # gaps: the 10 Hz fixes with 3 s removed at 20 s, window 1 s longer at the end than the fixes
+    keep = (t < 20.0) | (t >= 23.0)
+    g = gaps(t_ns[keep], 0, int(t_ns[-1] + 1.5e9), 2.0)
+    assert g["count"] == 1 and g["longest_s"] == pytest.approx(3.1) and g["longest_from_ns"] == t_ns[199]
+
+
+def test_a_verdict_that_cannot_be_computed_is_failed():
+    from types import SimpleNamespace
+    from scenarios.replay.verdict import assess
+    sol = SimpleNamespace(flight=SimpleNamespace(inputs=None, gps=None, cam_numbers=[]), nav=None, tuning=None)
+    v = assess(sol)
+    assert v.status == "FAILED" and v.exit_code() == 3 and v.reasons[0].startswith("the verdict could not be computed")

@@ -57,8 +57,9 @@ def summarize(rr) -> dict:
     if ve:
         out["vector_errors"] = ve
     if verdict is not None:
-        out.update({k: st[k] for k in ("sensors", "imu_gaps", "recoveries", "gps_steps", "position_sigma_m",
-                                       "tail_from_tplus_s", "warnings", "truncated")})
+        empty = {"sensors": {}, "imu_gaps": None, "recoveries": [], "gps_steps": [], "position_sigma_m": None,
+                 "tail_from_tplus_s": None, "warnings": list(getattr(inp, "notes", [])), "truncated": False}
+        out.update({k: st.get(k, v) for k, v in empty.items()})
         out["verdict"] = verdict.to_dict()
     return out
 

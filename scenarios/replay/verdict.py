@@ -392,10 +392,15 @@ def judge(stats: dict) -> Verdict:
 
 
 def assess(solution) -> Verdict:
-    """The verdict of a :class:`scenarios.replay.steps.Solution`."""
+    """The verdict of a :class:`scenarios.replay.steps.Solution`. Never raises: a solution whose
+    statistics cannot be computed is FAILED, with the error as the reason (no verdict, no
+    success)."""
     from nav.tuning import Tuning
     fl = solution.flight
-    return judge(statistics(solution.nav, fl.inputs, fl.gps, solution.tuning or Tuning(), fl.cam_numbers))
+    try:
+        return judge(statistics(solution.nav, fl.inputs, fl.gps, solution.tuning or Tuning(), fl.cam_numbers))
+    except Exception as e:  # noqa: BLE001 - reported as the verdict's reason
+        return Verdict("FAILED", [f"the verdict could not be computed ({type(e).__name__}: {e})"])
 
 
 __all__ = ["Verdict", "statistics", "judge", "assess", "mean_band", "gross_limit", "gps_steps", "gaps",
