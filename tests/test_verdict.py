@@ -1,8 +1,9 @@
 """The replay's verdict (scenarios/replay/verdict.py, docs/replay.md "Verdict"): a small simulated
 flight (atek, 200 s, truth-derived camera vectors from T+60) replayed clean and broken the way real
 data break: cut at half its bytes, GPS offset by 3 km from mid-flight, GPS of another flight from
-mid-flight, GPS velocity in the wrong frame. Clean ends OK (exit 0), truncated DEGRADED with the
-reader's warning on the terminal (exit 0, 4 with --strict), the broken GPS FAILED (exit 3).
+mid-flight, GPS velocity in the wrong frame, a 20 s IMU gap, the IMU cut at mid-flight. Clean
+ends OK (exit 0), truncated DEGRADED with the reader's warning on the terminal (exit 0, 4 with
+--strict), the broken GPS FAILED (exit 3), the IMU gap and cut DEGRADED.
 """
 from __future__ import annotations
 
@@ -53,6 +54,12 @@ def flights(tmp_path_factory):
     bad = copy.deepcopy(fl)
     bad.gps.velocity[:] = np.einsum("nji,nj->ni", earth.R_en(lat, lon), g.velocity)
     logs["ned_as_ecef"] = write_log(bad, d / "ned.mcap", vectors=vec)
+    # IMU samples missing: 20 s from T+100 (a gap), or everything after T_BREAK (a cut table)
+    t = fl.imu.t
+    for name, drop in (("imu_gap", (t > 100.0) & (t < 120.0)), ("imu_cut", t > T_BREAK)):
+        bad = copy.deepcopy(fl)
+        bad.imu.t, bad.imu.gyro, bad.imu.accel = t[~drop], fl.imu.gyro[~drop], fl.imu.accel[~drop]
+        logs[name] = write_log(bad, d / f"{name}.mcap", vectors=vec)
     return logs, fl, d
 
 
@@ -224,3 +231,25 @@ def test_a_verdict_that_cannot_be_computed_is_failed():
     sol = SimpleNamespace(flight=SimpleNamespace(inputs=None, gps=None, cam_numbers=[]), nav=None, tuning=None)
     v = assess(sol)
     assert v.status == "FAILED" and v.exit_code() == 3 and v.reasons[0].startswith("the verdict could not be computed")
+
+
+def test_imu_gap_and_cut_imu_are_degraded(flights, capsys):
+    """A 20 s IMU gap: the filter re-initialises from the first fix after it and goes on (the
+    solution is right again afterwards: position within 10 m of the truth 30 s later); an IMU
+    record that stops at T_BREAK while GPS goes on: the solution stops with it, which is said."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["imu_gap"], d, capsys)
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED"
+    assert s["imu_gaps"]["count"] == 1 and s["imu_gaps"]["longest_s"] == pytest.approx(20.05, abs=0.06)
+    rec = s["recoveries"]
+    assert len(rec) == 1 and rec[0]["reason"] == "imu_gap" and 120.0 <= rec[0]["tplus_s"] < 120.2
+    g = s["sensors"]["gps/position"]
+    assert g["accepted"] == g["offered"] - g["rejected"].get("chi-square gate", 0) and g["rejected_share"] < 0.05
+    i = int(np.searchsorted(fl.truth.t, 150.0))
+    sol = read_log(d / "imu_gap.solution.mcap").nav["forward"]
+    j = int(np.argmin(np.abs(sol.t_ns - (fl.truth.liftoff_ns + 150 * 10 ** 9))))
+    assert np.linalg.norm(np.asarray(sol.position_e[j]) - fl.truth.x_e[i]) < 10.0
+    rc, out, _, s = _replay(logs["imu_cut"], d, capsys, "--strict")
+    assert rc == 4 and s["verdict"]["status"] == "DEGRADED"
+    assert s["imu_ends_before_gps_s"] == pytest.approx(DURATION - T_BREAK, abs=0.1)
+    assert s["window_tplus_s"][1] == pytest.approx(T_BREAK, abs=0.06)

@@ -58,7 +58,8 @@ def summarize(rr) -> dict:
         out["vector_errors"] = ve
     if verdict is not None:
         empty = {"sensors": {}, "imu_gaps": None, "recoveries": [], "gps_steps": [], "position_sigma_m": None,
-                 "tail_from_tplus_s": None, "warnings": list(getattr(inp, "notes", [])), "truncated": False}
+                 "tail_from_tplus_s": None, "imu_ends_before_gps_s": 0.0, "warnings": list(getattr(inp, "notes", [])),
+                 "truncated": False}
         out.update({k: st.get(k, v) for k, v in empty.items()})
         out["verdict"] = verdict.to_dict()
     return out

@@ -47,6 +47,7 @@ NIS_DEGRADED_FACTOR = 1.25  #: a mean above the 95 % band and above this multipl
 VISION_REJECTED_DEGRADED = 0.2  #: share of a camera target's vectors rejected -> DEGRADED
 VISION_REJECTED_FAIL, VISION_MIN = 0.5, 20  #: share of all camera vectors (at least VISION_MIN) rejected -> FAILED
 GPS_OUTAGE_DEGRADED_S = 10.0    #: a GPS outage longer than this -> DEGRADED
+IMU_SHORT_DEGRADED_S = 5.0      #: the log's GPS goes on this long after its IMU record -> DEGRADED
 POS_SIGMA_FAIL_M = 100.0    #: position 1 sigma (largest axis) at the end of the flight above this -> FAILED
 STEP_SIGMAS = 6.0           #: a GPS step: the track's residual beyond this many of its sigmas per axis
 STEP_JERK = 1000.0          #: jerk allowance [m/s^3] of the trapezoidal track prediction (position + velocity)
@@ -270,8 +271,18 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
             "gps_steps": [{"t_ns": t, "tplus_s": float(tp(t)), "size_m": s, "sigmas": k} for t, s, k in gps_steps(gps)],
             "position_sigma_m": {"final": float(pos_sig[-1]), "max": float(pos_sig.max()),
                                  "max_tplus_s": float(tp(res.cov_t_ns[int(np.argmax(pos_sig))]))},
+            "imu_ends_before_gps_s": _imu_short(inputs, b),
             "warnings": warnings,
             "truncated": any("truncated" in w or "damaged" in w for w in warnings)}
+
+
+def _imu_short(inputs, b: int) -> float:
+    """Seconds by which the log's GPS goes on after its IMU record when the solution ends with
+    the IMU record (0 when it does not, or when the window ends earlier)."""
+    imu, gps = getattr(inputs, "imu", None), getattr(inputs, "gps", None)
+    if imu is None or gps is None or not len(gps.t_ns) or b < int(imu.t_ns[-1]):
+        return 0.0
+    return max(0.0, float(int(gps.t_ns[-1]) - int(imu.t_ns[-1])) / NS)
 
 
 GPS_REJECTED_DEGRADED = 0.05    #: share of GPS blocks rejected over the flight -> DEGRADED
@@ -352,6 +363,9 @@ def _degraded(s: dict) -> tuple:
                    f"{d.get('position_jump_m', float('nan')):.1f} m)")
     if len(rec) > 3:
         out.append(f"{len(rec) - 3} more re-initialisations, the last at T+{rec[-1]['tplus_s']:.1f} s")
+    if s.get("imu_ends_before_gps_s", 0.0) > IMU_SHORT_DEGRADED_S:
+        out.append(f"the IMU record ends {s['imu_ends_before_gps_s']:.1f} s before the GPS record: the solution stops "
+                   "with the IMU")
     g = s["imu_gaps"]
     if g["count"]:
         out.append(f"{g['count']} IMU gap(s) over {g['threshold_s']:g} s, longest {g['longest_s']:.2f} s")
