@@ -1,5 +1,7 @@
-"""Replay summary: measurements used / rejected per source with reasons, NIS statistics, final
-camera misalignments with 3 sigma, and errors against truth when the log has it."""
+"""Replay summary: per measurement source the offered / used / rejected counts with reasons, the
+NIS mean against its band and the gaps, IMU gaps, recoveries and input warnings (from the
+verdict's statistics, :mod:`scenarios.replay.verdict`), final camera misalignments with 3 sigma,
+errors against truth when the log has it, and the verdict as the last line."""
 from __future__ import annotations
 
 import os
@@ -10,9 +12,9 @@ import numpy as np
 
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
 from nav.schmidt import chi2_gate
+from scenarios.replay.verdict import DOF
 
 NS = 1_000_000_000
-DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
 
 
 def attitude_error(q_est, q_true) -> np.ndarray:

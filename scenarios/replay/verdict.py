@@ -15,9 +15,11 @@ track, the IMU time stamps):
   that its own velocity does not explain, the largest position sigma, and the input warnings
   (the log reader's, truncation included, and IMU samples the filter replaced).
 
-:func:`judge` turns them into a :class:`Verdict`. The design goal: a wrong trajectory never
-leaves with OK or DEGRADED (exit code 0); a run is FAILED when the filter's statistics show
-that its solution and its measurements disagree and the disagreement was not resolved.
+:func:`judge` turns them into a :class:`Verdict`. The design goal: no wrong trajectory leaves
+with OK or DEGRADED (exit code 0); a run is FAILED when the filter's statistics show that its
+solution and its measurements disagree and the disagreement was not resolved. What the
+statistics cannot show (a GPS track wrong as a whole in a way IMU and GPS agree on) is listed in
+docs/replay.md.
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ EXIT_OK, EXIT_FAILED, EXIT_DEGRADED_STRICT = 0, 3, 4
 
 # Thresholds (docs/replay.md "Verdict" gives the reasoning)
 REJECTED_FAIL = 0.5         #: share of GPS blocks (position or velocity) rejected over the flight -> FAILED
+GPS_REJECTED_DEGRADED = 0.05    #: share of GPS blocks rejected over the flight -> DEGRADED
 TAIL_S, TAIL_SHARE = 30.0, 0.2  #: the tail: the last max(TAIL_S, TAIL_SHARE x window) of the flight
 TAIL_MIN_FIXES = 10         #: the tail holds at least this many offered GPS fixes (earlier ones added)
 TAIL_REJECTED_FAIL = 0.5    #: share of GPS blocks rejected in the tail -> FAILED
@@ -284,8 +287,6 @@ def _imu_short(inputs, b: int) -> float:
         return 0.0
     return max(0.0, float(int(gps.t_ns[-1]) - int(imu.t_ns[-1])) / NS)
 
-
-GPS_REJECTED_DEGRADED = 0.05    #: share of GPS blocks rejected over the flight -> DEGRADED
 
 
 def _pct(x: float) -> str:
