@@ -54,6 +54,12 @@ def flights(tmp_path_factory):
     bad = copy.deepcopy(fl)
     bad.gps.velocity[:] = np.einsum("nji,nj->ni", earth.R_en(lat, lon), g.velocity)
     logs["ned_as_ecef"] = write_log(bad, d / "ned.mcap", vectors=vec)
+    # "no fix" rows (NaN position and velocity) from T+100 to T+115
+    bad = copy.deepcopy(fl)
+    nofix = (g.t >= 100.0) & (g.t < 115.0)
+    bad.gps.position[nofix] = np.nan
+    bad.gps.velocity[nofix] = np.nan
+    logs["nofix"] = write_log(bad, d / "nofix.mcap", vectors=vec)
     # IMU samples missing: 20 s from T+100 (a gap), or everything after T_BREAK (a cut table)
     t = fl.imu.t
     for name, drop in (("imu_gap", (t > 100.0) & (t < 120.0)), ("imu_cut", t > T_BREAK)):
@@ -253,3 +259,15 @@ def test_imu_gap_and_cut_imu_are_degraded(flights, capsys):
     assert rc == 4 and s["verdict"]["status"] == "DEGRADED"
     assert s["imu_ends_before_gps_s"] == pytest.approx(DURATION - T_BREAK, abs=0.1)
     assert s["window_tplus_s"][1] == pytest.approx(T_BREAK, abs=0.06)
+
+
+def test_no_fix_rows_are_an_outage_not_rejections(flights, capsys):
+    """150 NaN fixes (a receiver without a fix for 15 s): missing, not offered and rejected; the
+    outage is DEGRADED (longer than 10 s), the rest of the GPS accepted."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["nofix"], d, capsys)
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED"
+    g = s["sensors"]["gps/position"]
+    assert g["non_finite"] == 150 and g["offered"] == _window_fixes(fl) - 150 and g["rejected"] == {}
+    assert g["gaps"]["count"] == 1 and g["gaps"]["longest_s"] == pytest.approx(15.1, abs=1e-6)
+    assert "GPS outage of 15.1 s" in s["verdict"]["reasons"]

@@ -209,6 +209,8 @@ def sensor_table(s: dict) -> list:
         n = d["nis"]
         band = f"{n['band95'][0]:.2f}..{n['band95'][1]:.2f}" if n else ""
         why = ", ".join(f"{k}: {v}" for k, v in list(d["rejected"].items())[:3])
+        if d.get("non_finite"):
+            why += ("; " if why else "") + f"{d['non_finite']} non-finite (missing, not counted)"
         g = d["gaps"]
         mean = f"{n['mean']:.2f}" if n else "-"
         L.append(f"{src:<16} {d['offered']:>7} {d['accepted']:>6} {d['offered'] - d['accepted']:>5} {mean:>8} {band:>12} "

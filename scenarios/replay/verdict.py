@@ -32,6 +32,9 @@ from nav.schmidt import chi2_gate
 NS = 1_000_000_000
 DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
 GPS_KINDS = ("gps_pos", "gps_vel")
+#: rejection reasons of rows that hold no measurement (NaN: a receiver's "no fix" row, a frame
+#: without a vector): counted as missing, not as offered and rejected; their time is a gap
+MISSING = ("non-finite", "non-finite vector", "non-finite covariance")
 
 #: exit codes of ``horizon-nav replay`` (2 is refused input, scenarios.cli._main)
 EXIT_OK, EXIT_FAILED, EXIT_DEGRADED_STRICT = 0, 3, 4
@@ -112,12 +115,16 @@ def gross_limit(n: int, dof: int) -> float:
 
 
 def _records(innovations, cam_numbers):
-    """Per source name: kind, stamps, accepted flags, NIS, reasons (arrays; one pass)."""
+    """Per source name: kind, stamps, accepted flags, NIS, reasons (arrays; one pass) and the
+    count of non-finite measurements (NaN rows: missing, not offered; :data:`MISSING`)."""
     from scenarios.replay.solution_log import source_name
     rec: dict = {}
     for i in innovations:
         src = source_name(i.kind, i.camera, cam_numbers)
-        d = rec.setdefault(src, {"kind": i.kind, "t": [], "ok": [], "nis": [], "why": []})
+        d = rec.setdefault(src, {"kind": i.kind, "t": [], "ok": [], "nis": [], "why": [], "missing": 0})
+        if i.reason in MISSING:
+            d["missing"] += 1
+            continue
         d["t"].append(i.t_ns)
         d["ok"].append(i.accepted)
         d["nis"].append(i.nis)
@@ -225,7 +232,7 @@ def _source_stats(d: dict, t_tail: int, a: int, b: int) -> dict:
     n = int(d["t"].size)
     tail = d["t"] >= t_tail
     floor = 2.0 if d["kind"] in GPS_KINDS else 5.0
-    return {"kind": d["kind"], "dof": dof, "offered": n, "accepted": int(d["ok"].sum()),
+    return {"kind": d["kind"], "dof": dof, "offered": n, "accepted": int(d["ok"].sum()), "non_finite": d["missing"],
             "rejected": dict(sorted(why.items(), key=lambda kv: -kv[1])),
             "rejected_share": float(np.mean(~d["ok"])) if n else 0.0,
             "nis": _nis(d["nis"][d["ok"]], dof),
