@@ -54,6 +54,11 @@ def flights(tmp_path_factory):
     bad = copy.deepcopy(fl)
     bad.gps.velocity[:] = np.einsum("nji,nj->ni", earth.R_en(lat, lon), g.velocity)
     logs["ned_as_ecef"] = write_log(bad, d / "ned.mcap", vectors=vec)
+    # sigmas declared 10 times too large (a unit slip)
+    bad = copy.deepcopy(fl)
+    bad.gps.position_cov = 100.0 * g.position_cov
+    bad.gps.velocity_cov = 100.0 * g.velocity_cov
+    logs["loose"] = write_log(bad, d / "loose.mcap", vectors=vec)
     # "no fix" rows (NaN position and velocity) from T+100 to T+115
     bad = copy.deepcopy(fl)
     nofix = (g.t >= 100.0) & (g.t < 115.0)
@@ -271,3 +276,21 @@ def test_no_fix_rows_are_an_outage_not_rejections(flights, capsys):
     assert g["non_finite"] == 150 and g["offered"] == _window_fixes(fl) - 150 and g["rejected"] == {}
     assert g["gaps"]["count"] == 1 and g["gaps"]["longest_s"] == pytest.approx(15.1, abs=1e-6)
     assert "GPS outage of 15.1 s" in s["verdict"]["reasons"]
+
+
+def test_gps_sigmas_ten_times_too_large_are_degraded(flights, capsys):
+    """Sigmas 10 x the fixes' errors: every fix accepted, the NIS mean about 100 times below its
+    expectation m = 3 (S is then mostly the declared R; the filter's own share shrinks with it)."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["loose"], d, capsys)
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED"
+    for src in ("gps/position", "gps/velocity"):
+        g = s["sensors"][src]
+        assert g["accepted"] == g["offered"] == _window_fixes(fl)
+        assert g["nis"]["mean"] < 0.1 * 3 < g["nis"]["band95"][0]
+        # innovations of variance about R against S of about 100 R: 100 x the mean is a NIS mean of
+        # a consistent filter, inside its 1e-4 two-sided band (2.76..3.24 for 1401 fixes) up to the
+        # filter's own small share of S (measured 3.08 and 3.03)
+        lo4, hi4 = chi2.ppf([1e-4, 1 - 1e-4], 3 * g["offered"]) / g["offered"]
+        assert lo4 < 100.0 * g["nis"]["mean"] < hi4
+        assert any(r.startswith(f"{src}: NIS mean") and "overstate" in r for r in s["verdict"]["reasons"])

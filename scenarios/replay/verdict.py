@@ -50,6 +50,7 @@ DIVERGENCES_FAIL = 2        #: divergence recoveries in one flight -> FAILED
 NIS_GROSS_P = 1e-6          #: one-sided probability of the gross NIS limit of a consistent filter
 NIS_GROSS_FACTOR = 2.0      #: ... and at least this multiple of m (the mean's expectation)
 NIS_DEGRADED_FACTOR = 1.25  #: a mean above the 95 % band and above this multiple of m -> DEGRADED
+NIS_GPS_LOW_FACTOR = 0.1    #: a GPS NIS mean below this multiple of m (and its band) -> DEGRADED
 VISION_REJECTED_DEGRADED = 0.2  #: share of a camera target's vectors rejected -> DEGRADED
 VISION_REJECTED_FAIL, VISION_MIN = 0.5, 20  #: share of all camera vectors (at least VISION_MIN) rejected -> FAILED
 GPS_OUTAGE_DEGRADED_S = 10.0    #: a GPS outage longer than this -> DEGRADED
@@ -390,6 +391,10 @@ def _degraded(s: dict) -> tuple:
         elif n and n["mean"] > n["band95"][1]:
             notes.append(f"{src}: NIS mean {n['mean']:.2f} slightly above its 95 % band "
                          f"{n['band95'][0]:.2f}..{n['band95'][1]:.2f}")
+        elif n and gps and n["mean"] < min(n["band95"][0], NIS_GPS_LOW_FACTOR * d["dof"]):
+            out.append(f"{src}: NIS mean {n['mean']:.3g} far below its 95 % band {n['band95'][0]:.2f}.."
+                       f"{n['band95'][1]:.2f}: the fixes' sigmas overstate their errors (units?), the GPS is "
+                       "under-weighted")
         elif n and n["mean"] < n["band95"][0]:
             notes.append(f"{src}: NIS mean {n['mean']:.2f} below its 95 % band {n['band95'][0]:.2f}..{n['band95'][1]:.2f}"
                          ": the covariance is conservative")
