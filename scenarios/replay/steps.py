@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from contextlib import nullcontext
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Callable
 
@@ -414,6 +415,8 @@ class Solution:
     notes : list of str
         What the caller should know, from every step (read, initialisation, vision).
     tuning : nav.tuning.Tuning
+    verdict : scenarios.replay.verdict.Verdict
+        (property) ``.status`` OK, DEGRADED or FAILED, ``.reasons``, ``.statistics``.
 
     Examples
     --------
@@ -437,6 +440,13 @@ class Solution:
         return (f"Solution(forward, {_tplus(inp, res.t_ns[0])} .. {_tplus(inp, res.t_ns[-1])} s, "
                 f"{len(res.cov_t_ns)} epochs, init {self.start.method}, measurements: {used} used, "
                 f"{len(res.innovations) - used} rejected)")
+
+    @cached_property
+    def verdict(self):
+        """OK, DEGRADED or FAILED with the reasons and the per-sensor statistics it is judged on
+        (:class:`scenarios.replay.verdict.Verdict`, docs/replay.md "Verdict"); never raises."""
+        from scenarios.replay.verdict import assess
+        return assess(self)
 
     def to_frame(self):
         """The forward solution at the covariance epochs as a pandas DataFrame
