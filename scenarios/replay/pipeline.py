@@ -248,11 +248,12 @@ def _read(path, opt: ReplayOptions, timings: dict, cpu: dict):
 
 def _outputs(flight, opt: ReplayOptions, rec):
     """The solution log's path and metadata, and the recording's path (None without one)."""
+    from scenarios.replay import solution_log as SL
     inp = flight.inputs
     out = Path(opt.output) if opt.output else inp.path.with_name(inp.path.name.removesuffix(".mcap") + ".solution.mcap")
     meta = {"scenario": inp.info.get("scenario", ""), "seed": inp.info.get("seed", ""),
             "liftoff_utc_ns": inp.info.get("liftoff_utc_ns", ""), "kind": "solution", "source_log": str(inp.path),
-            "vision": flight.vision, "window_ns": f"{flight.t_from},{flight.t_to}"}
+            "vision": flight.vision, "window_ns": f"{flight.t_from},{flight.t_to}", **SL.log_metadata(inp)}
     rrd = None if rec is None or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     return out, meta, rrd

@@ -451,11 +451,10 @@ class Solution:
     def to_frame(self):
         """The forward solution at the covariance epochs as a pandas DataFrame
         (:mod:`scenarios.replay.table` lists the columns)."""
-        from scenarios.replay.table import solution_frame
+        from scenarios.replay.table import forward_columns, solution_frame
         res = self.nav
-        ci = res.cov_idx
-        return solution_frame(res.cov_t_ns, self.flight.inputs.mission_time(res.cov_t_ns), res.x_e[ci], res.v_e[ci],
-                              res.q_eb[ci], res.P_diag, res.layout)
+        return solution_frame(forward_columns(res, self.flight.inputs.mission_time(res.cov_t_ns),
+                                              self.flight.cam_numbers))
 
 
 def initialise(flight: Flight, vectors=None, *, init="auto", hooks: Hooks | None = None,
@@ -562,6 +561,8 @@ def navigate(flight: Flight, *, tuning=None, init="auto", vectors=None, smoother
         start = initialise(flight, sight, init=init, hooks=hooks, wording=wording)
     if start.alignment is not None:     # the filter starts with the alignment's attitude sigma
         tuning = tuning.with_(init_att_sigma=max(tuning.init_att_sigma, start.alignment.att_sigma))
+    if start.vel_sigma is not None:     # and with the sigma of a velocity from position-only fixes
+        tuning = tuning.with_(init_vel_sigma=max(tuning.init_vel_sigma, start.vel_sigma))
     with hooks.in_stage("filter"):
         try:
             res = navigator.run(flight.imu, start.state, tuning, gps=flight.gps, vectors=sight.vectors,
@@ -600,10 +601,10 @@ class Smoothed:
     def to_frame(self):
         """The smoothed solution as a pandas DataFrame (:mod:`scenarios.replay.table` lists the
         columns)."""
-        from scenarios.replay.table import solution_frame
+        from scenarios.replay.table import smoothed_columns, solution_frame
         r, sol = self.result, self.solution
-        return solution_frame(r.t_ns, sol.flight.inputs.mission_time(r.t_ns), r.x_e, r.v_e, r.q_eb, r.P,
-                              sol.nav.layout)
+        return solution_frame(smoothed_columns(r, sol.nav.layout, sol.flight.inputs.mission_time(r.t_ns),
+                                               sol.flight.cam_numbers))
 
 
 def smooth(solution: Solution, *, hooks: Hooks | None = None) -> Smoothed:
