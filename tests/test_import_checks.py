@@ -26,7 +26,7 @@ from scenarios.importer.mapping import load_mapping
 from tests.import_flights import T0, mapping, plane_tables, rocket_tables, write_csv
 
 ROOT = Path(__file__).resolve().parents[1]
-CROSS = ("gps_velocity", "specific_force", "gyro_rotation", "body_axes")
+CROSS = ("gps_velocity", "specific_force", "time_lag", "gyro_rotation", "body_axes")
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +126,19 @@ def test_ned_velocity_declared_ecef_refused(rocket, plane, capsys):
     for d, _ in (rocket, plane):
         _refused(d, mapping(d, "ned_as_ecef.toml", vel_frame="ecef"), capsys, "gps gps_velocity:",
                  "likely cause: NED velocities declared as frame = 'ecef'")
+
+
+def test_gps_time_offset_refused_naming_the_cause(rocket, plane, capsys):
+    """GPS stamps shifted against the IMU's: by the 18 s of GPS - UTC in 2019 (GPS time read as UTC)
+    and by half a second (a latency). The boost (rocket) and the turns (aircraft) fix the lag; the
+    simulated sensors share one clock, so the correct flights give 0.00 s (test above)."""
+    d, _ = rocket
+    _refused(d, mapping(d, "leap.toml", gps_week=", offset_s = 18.0"), capsys, "gps time_lag:",
+             "GPS stamps +18.00 s off the IMU's", "GPS time read as UTC or UTC as GPS time (GPS - UTC = 18 s",
+             "offset_s = -18.000 in [gps.time] corrects it")
+    for d, _ in (rocket, plane):
+        _refused(d, mapping(d, "late.toml", gps_week=", offset_s = 0.5"), capsys, "gps time_lag:",
+                 "GPS stamps +0.50 s off the IMU's", "a receiver latency or a clock offset")
 
 
 def test_lat_lon_swapped_refused(rocket, plane, capsys):
