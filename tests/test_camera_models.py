@@ -7,7 +7,6 @@ termination criteria (its default 5 fixed-point iterations leave ~1e-4 px at str
 corners). OpenCV 5 has no ``undistortPointsIter``: ``undistortPoints`` takes the criteria.
 """
 import math
-import textwrap
 
 import cv2
 import numpy as np
