@@ -38,13 +38,14 @@ exist for theta >= 90 deg).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping, Sequence, Union
 
 import numba
 import numpy as np
 
 from vision._kernels import FISHEYE, poly1, project1
+from vision._intrinsics import Intrinsics, check_intrinsics
 from vision.pinhole import PinholeCamera, pinhole_unproject
 
 __all__ = [
@@ -124,7 +125,7 @@ def _first_critical_angle(k: np.ndarray) -> float | None:
 
 
 @dataclass(frozen=True)
-class FisheyeCamera:
+class FisheyeCamera(Intrinsics):
     """Intrinsics of a radially symmetric fisheye camera (003 eqs. (13)-(16)).
 
     Parameters
@@ -146,19 +147,9 @@ class FisheyeCamera:
     (at the farthest image corner).
     """
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
     k: tuple[float, ...] = (1.0,)
     name: str = ""
     model: ClassVar[str] = "fisheye"
-    max_theta: float = field(init=False, repr=False, compare=False)
-    max_radius: float = field(init=False, repr=False, compare=False)
-    fov_theta: float = field(init=False, repr=False, compare=False)
-    _prm: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         label = check_intrinsics(self)
@@ -195,11 +186,6 @@ class FisheyeCamera:
         object.__setattr__(self, "fov_theta", float(inverse_radial(self, np.array(corner_r))))
 
     @property
-    def K(self) -> np.ndarray:
-        """3x3 pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @property
     def coefficients(self) -> np.ndarray:
         """k1..k5 padded with zeros to length 5."""
         out = np.zeros(5)
@@ -230,28 +216,6 @@ Camera = Union[FisheyeCamera, PinholeCamera]
 CAMERA_TYPES = (FisheyeCamera, PinholeCamera)
 
 
-def check_intrinsics(cam: Any) -> str:
-    """Validate and normalise width, height (positive integers), fx, fy (> 0), cx, cy (finite, inside
-    the image: pixel edges -0.5 .. size - 0.5) of a camera dataclass in place; returns its label for
-    error messages. ValueError naming the key otherwise."""
-    label = f"camera {cam.name!r}" if cam.name else "camera"
-    for nm in ("width", "height"):
-        v = getattr(cam, nm)
-        if isinstance(v, bool) or int(v) != v or v <= 0:
-            raise ValueError(f"{label}: {nm} must be a positive integer, got {v!r}")
-        object.__setattr__(cam, nm, int(v))
-    for nm in ("fx", "fy", "cx", "cy"):
-        v = float(getattr(cam, nm))
-        if not math.isfinite(v):
-            raise ValueError(f"{label}: {nm} must be finite, got {v!r}")
-        object.__setattr__(cam, nm, v)
-    if cam.fx <= 0 or cam.fy <= 0:
-        raise ValueError(f"{label}: fx and fy must be positive, got fx={cam.fx}, fy={cam.fy}")
-    for nm, size in (("cx", cam.width), ("cy", cam.height)):
-        if not -0.5 <= getattr(cam, nm) <= size - 0.5:
-            raise ValueError(f"{label}: principal point {nm} = {getattr(cam, nm)} lies outside the "
-                             f"{cam.width}x{cam.height} image; expected -0.5 <= {nm} <= {size - 0.5}")
-    return label
 
 
 # ----------------------------------------------------------------------------------------------

@@ -34,6 +34,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
+from vision._intrinsics import Intrinsics, check_intrinsics
 from vision._kernels import PINHOLE, distort1, undistort1
 
 __all__ = ["PinholeCamera", "pinhole_unproject"]
@@ -71,7 +72,7 @@ def _radial_limit(c: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class PinholeCamera:
+class PinholeCamera(Intrinsics):
     """Intrinsics of a pinhole camera with OpenCV distortion (module docstring).
 
     Parameters
@@ -91,24 +92,12 @@ class PinholeCamera:
     ``fov_theta`` [rad] (largest angle off the axis seen in the image).
     """
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
     dist: tuple[float, ...] = ()
     name: str = ""
     model: ClassVar[str] = "pinhole"
     max_r: float = field(init=False, repr=False, compare=False)
-    max_theta: float = field(init=False, repr=False, compare=False)
-    max_radius: float = field(init=False, repr=False, compare=False)
-    fov_theta: float = field(init=False, repr=False, compare=False)
-    _prm: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        from vision.camera import check_intrinsics
-
         label = check_intrinsics(self)
         dist = tuple(float(c) for c in np.atleast_1d(np.asarray(self.dist, dtype=float)))
         object.__setattr__(self, "dist", dist)
@@ -146,11 +135,6 @@ class PinholeCamera:
                              f"radial map r R(r^2) stops increasing at r = {self.max_r:.4g}); expected a "
                              f"distortion that is monotonic over the image")
         return float(np.max(np.arctan(np.hypot(xy[:, 0], xy[:, 1]))))
-
-    @property
-    def K(self) -> np.ndarray:
-        """3x3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
     def coefficients(self) -> np.ndarray:
