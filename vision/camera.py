@@ -1,4 +1,9 @@
-"""Radially symmetric fisheye camera model (003, §3.2, eqs. (12)-(16)).
+"""Camera models and their common interface: the radially symmetric fisheye (003, §3.2, eqs.
+(12)-(16), `FisheyeCamera`; OpenCV's fisheye is k = [1, d1..d4]), the equidistant fisheye
+(`EquidistantCamera`, k = [1]) and the pinhole with OpenCV's distortion (`PinholeCamera`,
+vision/pinhole.py). `project`, `unproject`, `unproject_jacobian`, `pixel_rays` and `fov_deg`
+take any of them; docs/cameras.md describes the models, their conversions and the camera files.
+The rest of this docstring describes the fisheye.
 
 Model
 -----
