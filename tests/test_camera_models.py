@@ -292,3 +292,21 @@ def test_front_end_on_a_rendered_pinhole_frame():
         assert math.degrees(angle(rec.e_c, fr.e_c_earth)) < 0.02
     with pytest.raises(ValueError, match="size 640x480 .*expected 1280x960"):
         process_frame(np.zeros((480, 640, 3), np.uint8), cam, cfg, prior=FramePrior(x, R_ec))
+
+
+@pytest.mark.parametrize("cam", [PINHOLES["plumb_bob"], PINHOLES["rational"], atek_camera()])
+def test_flight_log_camera_info_round_trip(tmp_path, cam):
+    """LogWriter.write_camera writes the model's ROS CameraInfo; the replay reads the same camera
+    back (scenarios.replay.inputs.camera_from_info): identical projection."""
+    from scenarios.flightlog.reader import read_log
+    from scenarios.flightlog.writer import LogWriter
+    from scenarios.replay.inputs import camera_from_info
+
+    t0 = 1_560_392_460_000_000_000
+    path = tmp_path / "cam.mcap"
+    with LogWriter(path, {"scenario": "", "seed": 0, "liftoff_utc_ns": t0, "kind": "simulated"}) as w:
+        w.write_camera(1, np.array([t0], np.int64), cam)
+    back = camera_from_info(read_log(path).cameras[1].info)
+    assert type(back) is type(cam)
+    uv = image_grid(cam, 64.0)
+    assert np.max(np.abs(project(back, unproject(cam, uv)) - uv)) < 1e-9
