@@ -256,6 +256,11 @@ class LogWriter:
                                         _merge_records([p[2] for p in take], src[order], off[order], ln[order]))
         self.message_count += sum(len(p[0]) for p in take)
 
+    def add_metadata(self, name: str, values: dict) -> None:
+        """A further MCAP metadata record ``name`` (values written as str), e.g. a result known
+        only at the end of a run."""
+        self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
+
     def close(self, complete: bool = True, reason: str = "") -> Path:
         """Flush, finish the MCAP file and rename it to ``path``. ``complete=False`` marks a partial
         log (status metadata) but still leaves a valid file. Returns the path."""
