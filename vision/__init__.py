@@ -20,9 +20,10 @@ import importlib
 __all__ = ["process_frame", "default_config", "resolve_search_lines", "TARGETS", "VisionConfig", "TargetConfig",
            "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "LimbOptions", "FlankOptions",
            "CalibrationOptions", "FramePrior", "VectorRecord", "CandidateResult", "TargetResult", "FrameResult",
-           "FisheyeCamera", "PayloadMask", "conic_polyline"]
+           "FisheyeCamera", "EquidistantCamera", "PinholeCamera", "PayloadMask", "conic_polyline"]
 
 _HOME = {"process_frame": "frontend", "conic_polyline": "image_geometry", "FisheyeCamera": "camera",
+         "EquidistantCamera": "camera", "PinholeCamera": "camera",
          "PayloadMask": "mask", "VectorRecord": "results", "CandidateResult": "results",
          "TargetResult": "results", "FrameResult": "results"}
 

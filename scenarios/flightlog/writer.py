@@ -372,6 +372,16 @@ class LogWriter:
                   "roi.width": 0, "roi.do_rectify": False})
         self._put(topic, "sensor_msgs/CameraInfo", t, v)
 
+    def write_camera(self, k: int, t_ns, camera) -> None:
+        """`write_camera_info` of a `vision.camera` model: its ROS distortion model and coefficients
+        (`vision.camera.to_camera_info`: "equidistant" for a fisheye, "plumb_bob" or
+        "rational_polynomial" for a pinhole)."""
+        from vision.camera import to_camera_info
+
+        info = to_camera_info(camera)
+        self.write_camera_info(k, t_ns, camera.width, camera.height, info["K"], info["D"],
+                               distortion_model=info["distortion_model"])
+
     def write_image(self, k: int, t_ns, jpeg, *, format: str = "jpeg") -> None:
         """``sensor_msgs/CompressedImage`` on ``/camera_<k>/image/compressed``: one bytes object
         with a scalar stamp, or a list of them with (N,) stamps."""

@@ -22,13 +22,22 @@ def attitude_error(q_est, q_true) -> np.ndarray:
     return matrix_to_rotvec(quat_to_matrix(q_true) @ np.swapaxes(quat_to_matrix(q_est), -1, -2))
 
 
+def _camera_lines(inp) -> dict:
+    """camera_<k> -> one line with the model and field of view (`vision.camera.describe`)."""
+    from vision.camera import describe
+
+    cams = getattr(inp, "cameras", {}) or {}
+    return {f"camera_{k}": describe(c.camera) for k, c in cams.items() if getattr(c, "camera", None) is not None}
+
+
 def summarize(rr) -> dict:
     """Figures of a :class:`scenarios.replay.pipeline.ReplayResult` as a JSON-ready dict."""
     res, inp, cams = rr.nav, rr.inputs, rr.cam_numbers
     out: dict = {"log": str(inp.path), "solution": str(rr.solution_path), "rrd": str(rr.rrd_path) if rr.rrd_path else None,
                  "vision": rr.vision_mode, "init": rr.init_method,
                  "window_tplus_s": [float(inp.mission_time(res.t_ns[0])), float(inp.mission_time(res.t_ns[-1]))],
-                 "timings_s": {k: round(v, 3) for k, v in rr.timings.items()}, "notes": list(rr.messages)}
+                 "timings_s": {k: round(v, 3) for k, v in rr.timings.items()}, "notes": list(rr.messages),
+                 "cameras": _camera_lines(inp)}
     verdict = rr.verdict
     st = verdict.statistics if verdict is not None else {}
     out["measurements"] = {k: {"used": d["accepted"], "rejected": dict(d["rejected"])}
@@ -157,6 +166,8 @@ def format_table(s: dict) -> str:
     L.append(f"replay of {s['log']}: T+{w0:.1f} .. T+{w1:.1f} s, vision from {s['vision']}, init {s['init']}")
     for n in s["notes"]:
         L.append(f"  note: {n}")
+    for k, line in s.get("cameras", {}).items():
+        L.append(f"  {k}: {line}")
     for w in s.get("warnings", []):
         L.append(f"  WARNING: {w}")
     L += sensor_table(s)
