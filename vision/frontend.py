@@ -330,6 +330,14 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
         if not tc.enabled:
             continue
         is_earth = name == "earth"
+        if name == "moon" and tc.phase.aware:
+            from vision.moon import process_moon
+            tr = process_moon(image, camera, mask, tc, prior, _predicted(name, prior), frame_seed, timings, hists,
+                              (t_ns, camera_id))
+            targets[name] = tr
+            if tr.record is None:
+                reasons[name] = tr.reason
+            continue
         tr = _process_target(name, image, camera, mask, tc, model if is_earth else None, frame_seed, timings,
                              baseline and is_earth, _predicted(name, prior), limb if is_earth else None, hists,
                              (t_ns, camera_id))

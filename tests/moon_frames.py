@@ -1,0 +1,98 @@
+"""Rendered Moon frames with known truth for the Moon tests and the bench: a narrow-field camera
+500 km above the Earth looking away from it, the Moon at its real distance (356-406 thousand km)
+somewhere in the inner image, lit by the Sun from a chosen phase angle, at a chosen apparent
+diameter in pixels (the camera's field of view is set for it), exposed so that the lit limb's
+brightness ranges from a dim 40/255 to saturated (the renderer's Lommel-Seeliger Moon,
+`scenarios.sim.render`), with photon and read noise and JPEG compression.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from nav import earth
+from scenarios.sim import render
+from vision.camera import from_fov
+
+MOON_RADIUS_M = 1_737_400.0
+AU_M = 1.495978707e11
+_OPTS = render.RenderOptions(clouds=False, payload_mask=None, exposure=1.0, white_balance=False,
+                             lens_flare=False)
+
+
+@dataclass(frozen=True)
+class MoonFrame:
+    """One frame: ``image`` as decoded from JPEG (BGR), the camera, the truth Moon and Sun
+    directions in the camera frame, the Moon's apparent radius [rad] and distance [m], the
+    illuminated fraction and the peak linear signal of the lit limb."""
+
+    image: np.ndarray
+    camera: object
+    moon_c: np.ndarray
+    sun_c: np.ndarray
+    alpha: float
+    distance_m: float
+    lit_fraction: float
+    signal: float
+
+
+def _unit(v):
+    return v / np.linalg.norm(v)
+
+
+def _perp(v, rng):
+    t = np.cross(v, rng.normal(size=3))
+    return _unit(t)
+
+
+def moon_frame(rng: np.random.Generator, diameter_px: float, lit_fraction: float, signal: float,
+               size=(400, 300), camera=None, seed: int = 0) -> MoonFrame:
+    """Render one Moon frame (see the module docstring). ``lit_fraction`` in (0, 1] sets the phase
+    angle g, ``(1 + cos g) / 2 = lit_fraction``; ``signal`` the linear sensor signal of the lit
+    limb (1 = full scale, above 1 saturated); ``camera`` None: an equidistant camera whose field of
+    view gives the Moon ``diameter_px`` pixels across."""
+    w, h = size
+    dist = rng.uniform(356e6, 406e6)
+    alpha = math.asin(MOON_RADIUS_M / dist)
+    if camera is None:
+        f = 0.5 * diameter_px / alpha
+        camera = from_fov(w, h, math.degrees(w / f), (1.0,))
+    x = np.array([earth.A + 500e3, 0.0, 0.0])
+    zen = _unit(x)
+    t = _perp(zen, rng)
+    bore = _unit(math.cos(math.radians(rng.uniform(0, 40))) * zen
+                 + math.sin(math.radians(rng.uniform(0, 40))) * t)
+    xc = _perp(bore, rng)
+    R_ec = np.column_stack([xc, np.cross(bore, xc), bore])
+    # Moon direction: inside 70 % of the half-width and half-height of the image
+    for _ in range(100):
+        uv = np.array([w / 2 + rng.uniform(-0.35, 0.35) * w, h / 2 + rng.uniform(-0.35, 0.35) * h])
+        from vision.camera import unproject
+        m_c = unproject(camera, uv)
+        if np.all(np.isfinite(m_c)):
+            break
+    m_e = R_ec @ m_c
+    g = math.acos(2.0 * lit_fraction - 1.0)
+    eps = math.pi - g                       # elongation: angle Moon - camera - Sun
+    s_e = _unit(math.cos(eps) * m_e + math.sin(eps) * _perp(m_e, rng))
+    peak = 2.0 * 0.12 * math.exp(-0.85 * g)
+    opts = _OPTS.__class__(**{**_OPTS.__dict__, "exposure": signal / peak})
+    fr = render.render_frame(camera, R_ec, x, x + AU_M * s_e, x + dist * m_e, seed=seed, options=opts)
+    img = cv2.imdecode(np.frombuffer(render.encode_jpeg(fr.image, 90), np.uint8), cv2.IMREAD_COLOR)
+    return MoonFrame(img, camera, fr.e_c_moon, fr.e_c_sun, alpha, dist, lit_fraction, signal)
+
+
+def moon_set(n: int, seed: int = 0, size=(400, 300)):
+    """``n`` frames with diameters 8-60 px, 20-100 % lit, limb signals 0.04-2 (log-uniform: a dim
+    40/255 half Moon to saturated)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        d = rng.uniform(8.0, 60.0)
+        k = rng.uniform(0.2, 1.0)
+        s = math.exp(rng.uniform(math.log(0.04), math.log(2.0)))
+        out.append(moon_frame(rng, d, k, s, size=size, seed=seed * 1000 + i))
+    return out
