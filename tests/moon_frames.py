@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 
 from nav import earth
+from nav.ephemeris import MOON_RADIUS as MOON_RADIUS_M
 from scenarios.sim import render
-from vision.camera import from_fov
+from vision.camera import from_fov, unproject
 
-MOON_RADIUS_M = 1_737_400.0
 AU_M = 1.495978707e11
 _OPTS = render.RenderOptions(clouds=False, payload_mask=None, exposure=1.0, white_balance=False,
                              lens_flare=False)
@@ -68,12 +68,8 @@ def moon_frame(rng: np.random.Generator, diameter_px: float, lit_fraction: float
     xc = _perp(bore, rng)
     R_ec = np.column_stack([xc, np.cross(bore, xc), bore])
     # Moon direction: inside 70 % of the half-width and half-height of the image
-    for _ in range(100):
-        uv = np.array([w / 2 + rng.uniform(-0.35, 0.35) * w, h / 2 + rng.uniform(-0.35, 0.35) * h])
-        from vision.camera import unproject
-        m_c = unproject(camera, uv)
-        if np.all(np.isfinite(m_c)):
-            break
+    uv = np.array([w / 2 + rng.uniform(-0.35, 0.35) * w, h / 2 + rng.uniform(-0.35, 0.35) * h])
+    m_c = unproject(camera, uv)
     m_e = R_ec @ m_c
     g = math.acos(2.0 * lit_fraction - 1.0)
     eps = math.pi - g                       # elongation: angle Moon - camera - Sun

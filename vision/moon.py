@@ -269,7 +269,7 @@ def _dark_outside(image, camera, mask, threshold, rays, e, alpha, step):
     return float(np.mean(b < threshold))
 
 
-def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, prior, predicted, frame_seed):
+def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
     """Steps 2-5 for candidate k: (CandidateResult, payload for the covariance or None)."""
     res = CandidateResult(index=k, n_pixels=cand.n_pixels)
     pa_c = float(fast_pixel_angle(camera, cand.points.mean(axis=0)[None, :])[0])
@@ -286,7 +286,6 @@ def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, prior, predicted,
     thr = tc.ransac.threshold_px * pa
     alpha_fit = alpha - tc.edge_offset_px * median(pa) if known else None
     e0 = predicted if predicted is not None else unproject(camera, uv.mean(axis=0))
-    sun_c = None if prior is None else prior.sun_c
     need = max(5, int(math.ceil(0.4 * math.pi * r_px)))
     st = lit_limb_start(edge, H, thr, alpha_fit, sun_c, e0, camera, tc, candidate_rng(frame_seed, cand))
     if isinstance(st, str):
@@ -321,10 +320,12 @@ def _accept(fit: ConeFit, known: bool, alpha: float, r_px: float, pa: float, pre
     return ""
 
 
-def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None, predicted, frame_seed: int,
-                 timings: dict, hists: dict, ids) -> TargetResult:
-    """The Moon's target result for one frame (steps 1-6 of the module docstring); ``hists``:
-    the frame's brightness histograms by sample step (shared with the other targets)."""
+def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None, predicted, sun_c,
+                 frame_seed: int, timings: dict, hists: dict, ids) -> TargetResult:
+    """The Moon's target result for one frame (steps 1-6 of the module docstring). ``predicted``:
+    the Moon's predicted direction or None; ``sun_c``: the Sun's direction in the camera frame
+    (the prior's, or the Sun found in the same frame) or None; ``hists``: the frame's brightness
+    histograms by sample step (shared with the other targets)."""
     t0 = time.perf_counter()
     a = as_frame(image, (camera.height, camera.width))
     step = tc.detection.binarize.sample_step
@@ -345,7 +346,7 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
         out.reason = f"no candidate: {det.reason}"
         return out
     order = sorted(range(len(det.candidates)), key=lambda i: -det.candidates[i].n_pixels)
-    scored = [_score(i, det.candidates[i], a, camera, mask, tc, t_seed, alpha, known, prior, predicted,
+    scored = [_score(i, det.candidates[i], a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
                      frame_seed) for i in order[:tc.scoring.max_candidates]]
     out.candidates = [r for r, _ in scored]
     good = [(r, p) for r, p in scored if not r.reason]
