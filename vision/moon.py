@@ -32,7 +32,9 @@ Steps (`process_moon`)
 3. Lit limb (`lit_limb_start`): the edge's outward normals in the image against s_t's image
    direction (from the camera's `project`); without the Sun's direction, a RANSAC cone fit of the
    whole edge (000 §2.3; the limb is the longest circular arc) gives the centre and s_t is the
-   mean radial direction of its inliers, the middle of the lit limb. Points within
+   mean radial direction of its inliers, the middle of the lit limb (when they lie all round, a
+   nearly full Moon, s_t points away from those inside the cone by a pixel or more: its
+   terminator). Points within
    ``limb_margin_deg`` of perpendicular (the cusps) are dropped.
 4. Fit (`fit_lit_limb`): the constrained fit of 003 eq. (24) with alpha known (less the edge
    offset): the prior's apparent radius (the ephemeris distance), else the mean radius
@@ -206,11 +208,17 @@ def lit_limb_start(edge: Candidate, H, thr, alpha_fit, sun_c, e0, camera, tc: Ta
     except ValueError as exc:
         return f"no cone on the whole edge: {exc}"
     e = rr.fit.e_c
-    tp = H[rr.inliers] - np.outer(H[rr.inliers] @ e, e)
+    tp = H - np.outer(H @ e, e)
     tp /= np.linalg.norm(tp, axis=1)[:, None]
-    st = tp.mean(axis=0)
-    if np.linalg.norm(st) < 0.3:     # radial directions all round: a full disc
-        return rr.inliers, None
+    st = tp[rr.inliers].mean(axis=0)
+    if np.linalg.norm(st) < 0.3:
+        # inliers all round: a full or nearly full disc, whose terminator runs just inside the
+        # limb on the side away from the Sun
+        inside = rr.inliers & (np.arccos(np.clip(H @ e, -1.0, 1.0)) - rr.fit.alpha
+                               < -1.0 * thr / tc.ransac.threshold_px)
+        if inside.sum() < 0.15 * rr.inliers.sum():
+            return rr.inliers, None
+        st = -tp[inside].mean(axis=0)
     return rr.inliers & lit_side(H, e, st, margin), st / np.linalg.norm(st)
 
 
