@@ -125,3 +125,31 @@ def test_image_without_a_row_and_earth_without_height(folder):
     assert p.returncode != 0 and "no row for image moon_1.png" in p.stderr
     p = _run(d, str(d / rows[0]["image"]), "--meta", str(f))
     assert p.returncode != 0 and "no height for the Earth" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_earth_entry_carries_the_edge_height(tmp_path):
+    """The Earth's --json entry: vector_c, cov_c and the edge height its nadir was fitted with (the
+    config's atmosphere_m and atmosphere_sigma_m on the threshold edge); the height and latitude
+    from the sidecar; the Moon not processed (reason given)."""
+    from vision.camera import atek_camera
+
+    from tests.poses import pose
+
+    cam = atek_camera()
+    R, x = pose(30.0, 20.0, h=230e3)
+    fr = render.render_frame(cam, R, x, ephemeris.sun_position_e(T0), None, options=render.RenderOptions.geometric())
+    cv2.imwrite(str(tmp_path / "earth.png"), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
+    save_camera(cam, tmp_path / "cam.toml")
+    lat, _, h = earth.ecef_to_geodetic(x)
+    (tmp_path / "meta.csv").write_text(f"image,height_m,lat_deg\nearth.png,{float(h):.3f},{math.degrees(float(lat)):.9f}\n")
+    (tmp_path / "v.toml").write_text("[earth]\natmosphere_m = 0.0\natmosphere_sigma_m = 500.0\n")
+    p = _run(tmp_path, str(tmp_path / "earth.png"), "--meta", str(tmp_path / "meta.csv"), "--config",
+             str(tmp_path / "v.toml"), "--json")
+    assert p.returncode == 0, p.stderr
+    o = json.loads(p.stdout)
+    e = o["earth"]
+    assert e["edge_height_m"] == 0.0 and e["edge_height_sigma_m"] == 500.0 and e["model"] == "sphere"
+    # the substitute sphere's centre, not the geocentric nadir (003 §2.8): within 0.3 deg
+    assert math.degrees(math.acos(min(1.0, float(np.array(e["vector_c"]) @ fr.e_c_earth)))) < 0.3
+    assert np.array(e["cov_c"]).shape == (3, 3)
+    assert o["moon"] is None and "not processed" in o["reasons"]["moon"]

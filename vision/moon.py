@@ -305,7 +305,7 @@ def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
         return res, None
     fit, inl = out
     res.fit, res.residual, res.inliers = fit, fit.residual, int(inl.sum())
-    res.reason = _accept(fit, known, alpha, r_px, pa_c, predicted, tc)
+    res.reason = _accept(fit, known, alpha, pa_c, predicted, tc)
     if not res.reason:
         dark = _dark_outside(a, camera, mask, t, H[inl], fit.e_c, fit.alpha, tc.side_check.step_px * pa_c)
         if not dark >= tc.side_check.min_agree:
@@ -313,7 +313,7 @@ def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
     return res, (edge, H, inl, fit, pa_c)
 
 
-def _accept(fit: ConeFit, known: bool, alpha: float, r_px: float, pa: float, predicted, tc: TargetConfig) -> str:
+def _accept(fit: ConeFit, known: bool, alpha: float, pa: float, predicted, tc: TargetConfig) -> str:
     """Step 5 (residual, radius, gate): "" or the reason."""
     if fit.residual > tc.max_residual:
         return f"residual {fit.residual:.3g} rad^2 > max_residual {tc.max_residual:.3g}"

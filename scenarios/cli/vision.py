@@ -30,7 +30,8 @@ def add_arguments(p) -> None:
     import argparse
 
     p.add_argument("images", nargs="+", metavar="IMAGE", help="image files (JPEG, PNG, ...)")
-    p.add_argument("--camera", required=True, help="camera file (TOML, scenarios/library/cameras/)")
+    p.add_argument("--camera", required=True, help="camera file (read by scenarios/config/camera.py; "
+                   "examples in scenarios/library/cameras/)")
     p.add_argument("--height", type=float, default=None,
                    help="height above the ellipsoid [m] of every image (the Earth needs it, from here or --meta)")
     p.add_argument("--lat", type=float, default=None,
