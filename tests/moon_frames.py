@@ -19,6 +19,9 @@ from scenarios.sim import render
 from vision.camera import from_fov, unproject
 
 AU_M = 1.495978707e11
+#: lens shapes r_d(theta) / f: "fisheye" equidistant (theta), "rectilinear" the pinhole's tan(theta)
+#: as its odd series to theta^9 (within 2e-5 rad of tan below 30 deg off axis)
+LENSES = {"fisheye": (1.0,), "rectilinear": (1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835)}
 _OPTS = render.RenderOptions(clouds=False, payload_mask=None, exposure=1.0, white_balance=False,
                              lens_flare=False)
 
@@ -49,17 +52,19 @@ def _perp(v, rng):
 
 
 def moon_frame(rng: np.random.Generator, diameter_px: float, lit_fraction: float, signal: float,
-               size=(400, 300), camera=None, seed: int = 0) -> MoonFrame:
+               size=(400, 300), camera=None, seed: int = 0, lens: str = "fisheye") -> MoonFrame:
     """Render one Moon frame (see the module docstring). ``lit_fraction`` in (0, 1] sets the phase
     angle g, ``(1 + cos g) / 2 = lit_fraction``; ``signal`` the linear sensor signal of the lit
-    limb (1 = full scale, above 1 saturated); ``camera`` None: an equidistant camera whose field of
-    view gives the Moon ``diameter_px`` pixels across."""
+    limb (1 = full scale, above 1 saturated); ``camera`` None: a camera of the ``lens`` shape
+    (`LENSES`) whose focal length gives the Moon ``diameter_px`` pixels across on the axis."""
     w, h = size
     dist = rng.uniform(356e6, 406e6)
     alpha = math.asin(MOON_RADIUS_M / dist)
     if camera is None:
+        k = LENSES[lens]
         f = 0.5 * diameter_px / alpha
-        camera = from_fov(w, h, math.degrees(w / f), (1.0,))
+        half = _theta_of(k, 0.5 * w / f)
+        camera = from_fov(w, h, math.degrees(2.0 * half), k)
     x = np.array([earth.A + 500e3, 0.0, 0.0])
     zen = _unit(x)
     t = _perp(zen, rng)
@@ -81,7 +86,18 @@ def moon_frame(rng: np.random.Generator, diameter_px: float, lit_fraction: float
     return MoonFrame(img, camera, fr.e_c_moon, fr.e_c_sun, alpha, dist, lit_fraction, signal)
 
 
-def moon_set(n: int, seed: int = 0, size=(400, 300)):
+def _theta_of(k, r):
+    """theta with r_d(theta) = r for the odd polynomial k (bisection)."""
+    lo, hi = 0.0, 1.5
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        t2 = mid * mid
+        val = mid * sum(c * t2 ** i for i, c in enumerate(k))
+        lo, hi = (mid, hi) if val < r else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def moon_set(n: int, seed: int = 0, size=(400, 300), lens: str = "fisheye"):
     """``n`` frames with diameters 8-60 px, 20-100 % lit, limb signals 0.04-2 (log-uniform: a dim
     40/255 half Moon to saturated)."""
     rng = np.random.default_rng(seed)
@@ -90,5 +106,5 @@ def moon_set(n: int, seed: int = 0, size=(400, 300)):
         d = rng.uniform(8.0, 60.0)
         k = rng.uniform(0.2, 1.0)
         s = math.exp(rng.uniform(math.log(0.04), math.log(2.0)))
-        out.append(moon_frame(rng, d, k, s, size=size, seed=seed * 1000 + i))
+        out.append(moon_frame(rng, d, k, s, size=size, seed=seed * 1000 + i, lens=lens))
     return out

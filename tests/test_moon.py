@@ -61,6 +61,22 @@ def moons():
     return moon_set(40, seed=11)
 
 
+def test_rendered_moons_rectilinear_lens():
+    """The same acceptance through a rectilinear (pinhole-shaped, r = f tan theta) lens, with the
+    replay's prior: the Moon's steps go through the camera's project/unproject only."""
+    frames = moon_set(30, seed=12, lens="rectilinear")
+    assert frames[0].camera.k[1] == pytest.approx(1 / 3)
+    cfg = _moon_only()
+    err, inside = [], []
+    for f in frames:
+        rec = process_frame(f.image, f.camera, cfg, prior=FramePrior(sun_c=f.sun_c, moon_alpha=f.alpha)).record("moon")
+        if rec is not None:
+            err.append(_ang(rec.e_c, f.moon_c))
+            inside.append(err[-1] < 3 * rec.sigma_deg)
+    assert len(err) >= 0.95 * len(frames)
+    assert math.sqrt(np.mean(np.square(err))) <= 0.02 and np.mean(inside) >= 0.97
+
+
 @pytest.mark.parametrize("prior", ["ephemeris", "sun only", "none"])
 def test_rendered_moons(moons, prior):
     """Acceptance of the Moon on rendered frames (tests/moon_frames.py: 20-100 % lit, 8-60 px

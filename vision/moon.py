@@ -287,9 +287,12 @@ def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
         res.reason = tr
         return res, None
     edge, t = tr
+    H = unproject(camera, edge.points)
+    ok = np.isfinite(H[:, 2])          # NaN beyond the lens's range
+    if not ok.all():
+        edge = Candidate(edge.points[ok], edge.border, False, edge.start_edge, edge.end_edge, edge.arc_length)
+        H = H[ok]
     uv = edge.points
-    H = unproject(camera, uv)
-    ok = np.isfinite(H[:, 2])
     pa = fast_pixel_angle(camera, uv)
     thr = tc.ransac.threshold_px * pa
     alpha_fit = alpha - tc.edge_offset_px * median(pa) if known else None
@@ -299,7 +302,7 @@ def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
     if isinstance(st, str):
         res.reason = st
         return res, None
-    out = fit_lit_limb(H, st[0] & ok, st[1], alpha_fit, thr, math.radians(tc.phase.limb_margin_deg), need)
+    out = fit_lit_limb(H, st[0], st[1], alpha_fit, thr, math.radians(tc.phase.limb_margin_deg), need)
     if isinstance(out, str):
         res.reason = out
         return res, None

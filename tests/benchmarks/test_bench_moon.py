@@ -77,6 +77,7 @@ def test_bench_moon(bench, is_quick):
     frames = moon_set(60 if is_quick else 200, seed=7)
     out = {p: _run(frames, _moon_only(), p) for p in ("ephemeris", "sun", "none")}
     old = _run(frames, _moon_only(aware=False), "ephemeris")
+    rect = _run(moon_set(30 if is_quick else 100, seed=8, lens="rectilinear"), _moon_only(), "ephemeris")
     for p, o in out.items():
         print(f"\n[moon, prior {p}] found {o['found']:.3f} RMS {o['rms']:.4f} deg p95 {o['p95']:.4f} "
               f"3-sigma containment {o['contained']:.3f} median {o['ms']:.2f} ms")
@@ -86,7 +87,9 @@ def test_bench_moon(bench, is_quick):
     e = out["ephemeris"]
     bench("vision.moon_rms_deg", e["rms"], "deg", baseline=0.02, baseline_name="acceptance target 0.02 deg",
           sun_only_rms=out["sun"]["rms"], no_prior_rms=out["none"]["rms"], median_pixel_deg=pa,
-          p95=e["p95"], n=len(frames), note="prior: Sun direction and apparent radius (the replay's)")
+          p95=e["p95"], n=len(frames), rectilinear_rms=rect["rms"], rectilinear_found=rect["found"],
+          rectilinear_contained=rect["contained"],
+          note="prior: Sun direction and apparent radius (the replay's); equidistant lens, rectilinear beside")
     bench("vision.moon_found_fraction", e["found"], "fraction", baseline=0.95,
           baseline_name="acceptance target 0.95", full_disc_path_found=old["found"],
           sun_only_found=out["sun"]["found"], no_prior_found=out["none"]["found"], n=len(frames))
