@@ -1,9 +1,9 @@
 """The Moon (vision/moon.py) on rendered frames (tests/moon_frames.py: 20-100 % lit, 8-60 px across,
 limb signal 0.04-2 of full scale, noise, JPEG): found fraction, direction RMS and 3-sigma
 containment with the replay's prior (the Sun's direction and the Moon's apparent radius), with the
-Sun only, and without any prior; the full-disc path (``moon.phase.aware = false``) on the same
-frames as the before figure; and the cost of enabling the Moon on an ATEK Earth + Sun frame.
-QUICK: 60 frames instead of 200."""
+Sun only, and without any prior; through a rectilinear (pinhole-shaped) lens beside; the
+fixed-threshold full-disc fit (``moon.phase.aware = false``) on the same frames for comparison;
+and the cost of enabling the Moon on an ATEK Earth + Sun frame. QUICK: 60 frames instead of 200."""
 from __future__ import annotations
 
 import dataclasses
