@@ -108,3 +108,37 @@ def moon_set(n: int, seed: int = 0, size=(400, 300), lens: str = "fisheye"):
         s = math.exp(rng.uniform(math.log(0.04), math.log(2.0)))
         out.append(moon_frame(rng, d, k, s, size=size, seed=seed * 1000 + i, lens=lens))
     return out
+
+
+def moon_over_earth(rng: np.random.Generator, diameter_px: float, lit_fraction: float, size=(400, 300),
+                    seed: int = 0) -> MoonFrame:
+    """A rectilinear-lens camera 500 km up looking at the horizon: the Earth's limb (atmosphere,
+    clouds) across the lower part of the image, the Moon above it, auto exposure set by the Earth
+    (the Moon dim, as in orbital photographs). ``signal`` is NaN (the exposure decides it)."""
+    w, h = size
+    dist = rng.uniform(356e6, 406e6)
+    alpha = math.asin(MOON_RADIUS_M / dist)
+    k = LENSES["rectilinear"]
+    f = 0.5 * diameter_px / alpha
+    camera = from_fov(w, h, math.degrees(2.0 * _theta_of(k, 0.5 * w / f)), k)
+    x = np.array([earth.A + 500e3, 0.0, 0.0])
+    up = _unit(x)
+    north = np.array([0.0, 0.0, 1.0])
+    east = np.cross(north, up)
+    az = rng.uniform(0, 2 * math.pi)
+    fwd = math.cos(az) * north + math.sin(az) * east
+    dip = math.acos(earth.A / np.linalg.norm(x))            # the horizon's depression
+    half_v = math.atan(0.5 * h / f)
+    el = -dip + 0.5 * half_v                                # the limb ~3/4 down the image
+    bore = _unit(math.cos(el) * fwd + math.sin(el) * up)
+    xc = _unit(np.cross(bore, up))                          # image x horizontal, v down = towards the Earth
+    R_ec = np.column_stack([xc, np.cross(bore, xc), bore])
+    uv = np.array([w / 2 + rng.uniform(-0.35, 0.35) * w, h * rng.uniform(0.15, 0.4)])
+    m_e = R_ec @ unproject(camera, uv)
+    g = math.acos(2.0 * lit_fraction - 1.0)
+    eps = math.pi - g
+    s_e = _unit(math.cos(eps) * m_e + math.sin(eps) * _perp(m_e, rng))
+    opts = render.RenderOptions(payload_mask=None, cloud_map_size=256, lens_flare=False)
+    fr = render.render_frame(camera, R_ec, x, x + AU_M * s_e, x + dist * m_e, seed=seed, options=opts)
+    img = cv2.imdecode(np.frombuffer(render.encode_jpeg(fr.image, 90), np.uint8), cv2.IMREAD_COLOR)
+    return MoonFrame(img, camera, fr.e_c_moon, fr.e_c_sun, alpha, dist, lit_fraction, math.nan)

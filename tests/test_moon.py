@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.moon_frames import moon_set
+from tests.moon_frames import moon_over_earth, moon_set
 from vision.borders import SearchConfig, find_borders
 from vision.candidates import split_borders
 from vision.config import FramePrior, PhaseOptions, VisionConfig
@@ -103,6 +103,25 @@ def test_rendered_moons(moons, prior):
     assert found >= 0.95 * len(moons)
     assert rms <= 0.02, rms
     assert np.mean(inside) >= (0.97 if prior != "none" else 0.90), np.mean(inside)
+
+
+def test_moons_over_the_earth():
+    """A rectilinear-lens camera looking at the horizon from 500 km, auto exposure set by the Earth
+    (limb glow, clouds), the Moon above the limb: found in >= 90 % of the frames (measured 39/40:
+    a dim crescent touching the limb glow is missed), RMS <= 0.02 deg (measured 0.006), all
+    inside 3 sigma. The seed threshold is the sky's level, not the Earth-lit median's."""
+    rng = np.random.default_rng(3)
+    cfg = _moon_only()
+    err, inside = [], []
+    n = 16
+    for i in range(n):
+        f = moon_over_earth(rng, rng.uniform(8, 60), rng.uniform(0.2, 1.0), seed=i)
+        rec = process_frame(f.image, f.camera, cfg, prior=FramePrior(sun_c=f.sun_c, moon_alpha=f.alpha)).record("moon")
+        if rec is not None:
+            err.append(_ang(rec.e_c, f.moon_c))
+            inside.append(err[-1] < 3 * rec.sigma_deg)
+    assert len(err) >= 0.9 * n
+    assert math.sqrt(np.mean(np.square(err))) <= 0.02 and all(inside)
 
 
 def test_the_full_disc_path_misses_partly_lit_moons(moons):

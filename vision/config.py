@@ -352,8 +352,12 @@ class PhaseOptions(_Checks):
     radius_tol : accepted fitted radius (free-radius fit) and size gates, as a fraction of the
         expected radius (the distance varies by +-6 %; the lens's scale across the image).
     seed_above : seed threshold of the search, brightness above the frame's dark level (its
-        ``seed_percentile`` percentile) [0-255]: a dim half Moon peaks at ~57/255.
-    seed_percentile : percentile of the frame brightness taken as its dark level.
+        ``seed_percentiles``) [0-255]: a dim half Moon peaks at ~57/255.
+    seed_percentiles : percentiles of the frame brightness taken as its dark level, tried in
+        turn until a candidate is accepted: the first the sky's, as long as it covers that share of
+        the frame (the median is the Earth's when the Earth fills half of it, and would put the
+        seed above a dim Moon); the next for a Moon in the glow above the Earth's limb, which joins
+        the glow at the sky's level.
     edge_fraction : the edge threshold of each candidate, as a fraction of its peak above its local
         background (0..1): the lit limb of a Lommel-Seeliger Moon is a step from the background to
         its brightest value, crossed at its middle by 0.5.
@@ -375,7 +379,7 @@ class PhaseOptions(_Checks):
     free_radius: bool = False
     radius_tol: float = 0.25
     seed_above: float = 12.0
-    seed_percentile: float = 50.0
+    seed_percentiles: tuple = (5.0, 50.0, 90.0)
     edge_fraction: float = 0.5
     min_contrast: float = 20.0
     limb_margin_deg: float = 15.0
@@ -391,7 +395,10 @@ class PhaseOptions(_Checks):
             self._bad("free_radius", "true or false")
         self._within("radius_tol", 0.01, 0.9, "a fraction in [0.01, 0.9]")
         self._within("seed_above", 1.0, 254.0, "a brightness step in [1, 254]")
-        self._within("seed_percentile", 0.0, 100.0, "a percentile in [0, 100]")
+        q = tuple(self.seed_percentiles)
+        if (not q or not all(isinstance(v, (int, float)) and 0.0 <= v <= 100.0 for v in q)
+                or any(b <= a for a, b in zip(q[:-1], q[1:]))):
+            self._bad("seed_percentiles", "a non-empty increasing list of percentiles in [0, 100]")
         self._within("edge_fraction", 0.05, 0.95, "a fraction in [0.05, 0.95]")
         self._finite(("min_contrast", "edge_sigma_px"))
         self._within("limb_margin_deg", 0.0, 60.0, "an angle in [0, 60] deg")

@@ -22,8 +22,10 @@ Steps (`process_moon`)
 ----------------------
 1. Search: rows ``spacing_radii`` expected radii apart at the camera's coarsest pixel scale (the
    lit part of a Moon lit at the fraction k is 2 k radii thick along s_t), a seed threshold
-   ``seed_above`` over the frame's dark level (`seed_threshold`); with a predicted direction only
-   the rows its gate reaches (`vision.image_geometry.gate_search_rows`).
+   ``seed_above`` over the frame's dark level (`seed_threshold`, the first of
+   ``seed_percentiles``); when no candidate is accepted, again over the next percentile (a Moon
+   in the glow above the Earth's limb joins the glow at the sky's level); with a predicted
+   direction only the rows its gate reaches (`vision.image_geometry.gate_search_rows`).
 2. Per candidate (`trace_candidate`): size gates from the expected radius in pixels where the
    candidate lies (`fast_pixel_angle`, any lens model), a window of the frame around it, its peak
    (95th percentile of its seeded pixels) and its local background (median of the window's rim),
@@ -90,12 +92,12 @@ def expected_alpha(tc: TargetConfig, prior: FramePrior | None) -> tuple[float, f
     return a, 0.0, True
 
 
-def seed_threshold(hist: np.ndarray, channels: int, tc: TargetConfig) -> float:
-    """Seed threshold [0-255]: the frame's dark level (the ``phase.seed_percentile`` percentile of
-    its sampled brightness, from the channel-sum histogram) plus ``phase.seed_above``."""
+def seed_threshold(hist: np.ndarray, channels: int, percentile: float, above: float) -> float:
+    """Seed threshold [0-255]: the frame's ``percentile`` percentile of brightness (from the
+    channel-sum histogram of its sampled pixels) plus ``above``."""
     c = np.cumsum(hist)
-    k = int(np.searchsorted(c, tc.phase.seed_percentile / 100.0 * c[-1]))
-    return min(254.0, k / channels + tc.phase.seed_above)
+    k = int(np.searchsorted(c, percentile / 100.0 * c[-1]))
+    return min(254.0, k / channels + above)
 
 
 def moon_detection(tc: TargetConfig, camera, alpha: float, threshold: float):
@@ -331,11 +333,40 @@ def _accept(fit: ConeFit, known: bool, alpha: float, pa: float, predicted, tc: T
     return ""
 
 
+def _search(a, camera, mask, tc: TargetConfig, hist, t_seed: float, alpha: float, predicted):
+    """Step 1 at the seed threshold ``t_seed``: the `Detection`."""
+    dc = moon_detection(tc, camera, alpha, t_seed)
+    rows = None
+    if predicted is not None:
+        rows = gate_search_rows(camera, predicted, math.radians(tc.gate_deg) + 2.0 * alpha, dc.search)
+    return detect(a, dc, mask, hist=hist, rows=rows)
+
+
+def _candidates(out: TargetResult, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
+    """Steps 2-5 on ``out.detection``'s longest candidates: the accepted (result, payload) pairs;
+    ``out.candidates`` and ``out.reason`` set."""
+    det = out.detection
+    if not det.candidates:
+        out.reason = f"no candidate: {det.reason}"
+        return []
+    order = sorted(range(len(det.candidates)), key=lambda i: -det.candidates[i].n_pixels)
+    scored = [_score(i, det.candidates[i], a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
+                     frame_seed) for i in order[:tc.scoring.max_candidates]]
+    out.candidates = [r for r, _ in scored]
+    good = [(r, p) for r, p in scored if not r.reason]
+    if not good:
+        best = min(out.candidates, key=lambda r: r.residual)
+        out.reason = (f"no accepted candidate among {len(det.candidates)} at seed threshold {t_seed:.0f} "
+                      f"(best: candidate {best.index}, {best.reason})")
+    return good
+
+
 def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None, predicted, sun_c,
                  frame_seed: int, timings: dict, hists: dict, ids) -> TargetResult:
-    """The Moon's target result for one frame (steps 1-6 of the module docstring). ``predicted``:
-    the Moon's predicted direction or None; ``sun_c``: the Sun's direction in the camera frame
-    (the prior's, or the Sun found in the same frame) or None; ``hists``: the frame's brightness
+    """The Moon's target result for one frame (steps 1-6 of the module docstring), at each seed
+    threshold of ``phase.seed_percentiles`` until a candidate is accepted. ``predicted``: the
+    Moon's predicted direction or None; ``sun_c``: the Sun's direction in the camera frame (the
+    prior's, or the Sun found in the same frame) or None; ``hists``: the frame's brightness
     histograms by sample step (shared with the other targets)."""
     t0 = time.perf_counter()
     a = as_frame(image, (camera.height, camera.width))
@@ -344,35 +375,25 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
     if hist is None:
         hist = hists[step] = brightness_histogram(a, step)
     alpha, sigma_alpha, known = expected_alpha(tc, prior)
-    t_seed = seed_threshold(hist, a.shape[2], tc)
-    dc = moon_detection(tc, camera, alpha, t_seed)
-    rows = None
-    if predicted is not None:
-        rows = gate_search_rows(camera, predicted, math.radians(tc.gate_deg) + 2.0 * alpha, dc.search)
-    det = detect(a, dc, mask, hist=hist, rows=rows)
+    good, tried = [], []
+    for q in tc.phase.seed_percentiles:
+        t_seed = seed_threshold(hist, a.shape[2], q, tc.phase.seed_above)
+        if tried and t_seed < tried[-1] + 0.5 * tc.phase.seed_above:
+            continue
+        tried.append(t_seed)
+        out = TargetResult("moon", _search(a, camera, mask, tc, hist, t_seed, alpha, predicted))
+        good = _candidates(out, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed)
+        if good:
+            break
     t1 = time.perf_counter()
     timings["moon.detect"] = t1 - t0
-    out = TargetResult("moon", det)
-    if not det.candidates:
-        out.reason = f"no candidate: {det.reason}"
-        return out
-    order = sorted(range(len(det.candidates)), key=lambda i: -det.candidates[i].n_pixels)
-    scored = [_score(i, det.candidates[i], a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
-                     frame_seed) for i in order[:tc.scoring.max_candidates]]
-    out.candidates = [r for r, _ in scored]
-    good = [(r, p) for r, p in scored if not r.reason]
-    timings["moon.score"] = time.perf_counter() - t1
     if not good:
-        best = min(out.candidates, key=lambda r: r.residual)
-        out.reason = (f"no accepted candidate among {len(det.candidates)} "
-                      f"(best: candidate {best.index}, {best.reason})")
         return out
     win, (edge, H, inl, fit, pa) = min(good, key=lambda q: q[0].residual)
     out.winner = win.index
-    t2 = time.perf_counter()
     rays, J = unproject_jacobian(camera, edge.points[inl])
     P = moon_covariance(rays, J, fit, H[inl], known, pa, sigma_alpha, tc)
-    timings["moon.covariance"] = time.perf_counter() - t2
+    timings["moon.covariance"] = time.perf_counter() - t1
     out.points, out.inlier_mask = edge.points, inl
     lam = float(largest_eigenvalue(P))
     out.record = VectorRecord(int(ids[0]), int(ids[1]), "moon", fit.e_c, P, lam * np.eye(3), float(fit.residual),

@@ -3,7 +3,8 @@ limb signal 0.04-2 of full scale, noise, JPEG): found fraction, direction RMS an
 containment with the replay's prior (the Sun's direction and the Moon's apparent radius), with the
 Sun only, and without any prior; through a rectilinear (pinhole-shaped) lens beside; the
 fixed-threshold full-disc fit (``moon.phase.aware = false``) on the same frames for comparison;
-and the cost of enabling the Moon on an ATEK Earth + Sun frame. QUICK: 60 frames instead of 200."""
+the Moon above the Earth's limb in frames exposed for the Earth; and the cost of enabling the Moon
+on an ATEK Earth + Sun frame. QUICK: 60 frames instead of 200."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,7 +13,7 @@ import math
 import numpy as np
 
 from tests.benchmarks.timing import median_ms
-from tests.moon_frames import moon_set
+from tests.moon_frames import moon_over_earth, moon_set
 from vision.config import FramePrior, VisionConfig
 from vision.frontend import process_frame
 from vision.image_geometry import fast_pixel_angle
@@ -97,5 +98,12 @@ def test_bench_moon(bench, is_quick):
           baseline_name="acceptance target 0.97", sun_only=out["sun"]["contained"],
           no_prior=out["none"]["contained"])
     bench("vision.moon_ms_per_frame", e["ms"], "ms", note="400x300 Moon frames, Moon only")
+    rng = np.random.default_rng(3)
+    over = [moon_over_earth(rng, rng.uniform(8, 60), rng.uniform(0.2, 1.0), seed=i) for i in range(20 if is_quick else 60)]
+    oe = _run(over, _moon_only(), "ephemeris")
+    print(f"\n[moon over the Earth] found {oe['found']:.3f} RMS {oe['rms']:.4f} contained {oe['contained']:.3f}")
+    bench("vision.moon_over_earth_found_fraction", oe["found"], "fraction", baseline=0.95,
+          baseline_name="acceptance target 0.95", rms_deg=oe["rms"], contained=oe["contained"], n=len(over),
+          note="rectilinear lens at the horizon from 500 km, auto exposure set by the Earth, Moon above the limb")
     _atek_cost(bench)
     assert e["found"] > 0.5
