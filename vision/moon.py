@@ -23,8 +23,9 @@ Steps (`process_moon`)
 1. Search: rows ``spacing_radii`` expected radii apart at the camera's coarsest pixel scale (the
    lit part of a Moon lit at the fraction k is 2 k radii thick along s_t), a seed threshold
    ``seed_above`` over the frame's dark level (`seed_threshold`, the first of
-   ``seed_percentiles``); when no candidate is accepted, again over the next percentile (a Moon
-   in the glow above the Earth's limb joins the glow at the sky's level); with a predicted
+   ``seed_percentiles``); when no candidate is accepted but one was larger than the Moon, again
+   over the next percentile (a Moon in the glow above the Earth's limb joins the glow at the
+   sky's level; a higher seed only splits regions); with a predicted
    direction only the rows its gate reaches (`vision.image_geometry.gate_search_rows`).
 2. Per candidate (`trace_candidate`): size gates from the expected radius in pixels where the
    candidate lies (`fast_pixel_angle`, any lens model), a window of the frame around it, its peak
@@ -129,6 +130,9 @@ def outward_normals(points: np.ndarray, closed: bool, k: int = 2) -> np.ndarray:
     return n / nn[:, None]
 
 
+_TOO_LARGE = "across > the Moon's"   # the reason a higher seed threshold can cure
+
+
 def trace_candidate(a: np.ndarray, cand: Candidate, t_seed: float, r_px: float, tc: TargetConfig):
     """Step 2 of the module docstring: (edge Candidate in frame pixels, threshold) or a reason."""
     ph = tc.phase
@@ -136,7 +140,7 @@ def trace_candidate(a: np.ndarray, cand: Candidate, t_seed: float, r_px: float, 
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     ext = float((hi - lo).max()) + 1.0
     if ext > 2.0 * r_px * (1.0 + ph.radius_tol) + 3.0:
-        return f"{ext:.0f} px across > the Moon's {2 * r_px:.1f} px (+{ph.radius_tol:g})"
+        return f"{ext:.0f} px {_TOO_LARGE} {2 * r_px:.1f} px (+{ph.radius_tol:g})"
     if ext < r_px * (1.0 - ph.radius_tol) - 1.0:
         return f"{ext:.0f} px across < the Moon's radius {r_px:.1f} px (-{ph.radius_tol:g})"
     h, w = a.shape[:2]
@@ -383,8 +387,8 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
         tried.append(t_seed)
         out = TargetResult("moon", _search(a, camera, mask, tc, hist, t_seed, alpha, predicted))
         good = _candidates(out, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed)
-        if good:
-            break
+        if good or not any(_TOO_LARGE in r.reason for r in out.candidates):
+            break           # a higher seed only splits regions larger than the Moon
     t1 = time.perf_counter()
     timings["moon.detect"] = t1 - t0
     if not good:
