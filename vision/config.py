@@ -371,6 +371,9 @@ class PhaseOptions(_Checks):
         lit in any orientation.
     edge_sigma_px : 1-sigma radial bias [px] of the threshold edge against the true limb
         (covariance term of the known-radius fit, whose direction moves with its radius).
+    full_sigma_px : 1-sigma [px] per axis added to a disc fitted all round without a known lit
+        side (no Sun direction, no terminator found): a nearly full Moon's terminator may run up
+        to a pixel inside half of its outline, moving the centre by up to half a pixel.
     """
 
     aware: bool = True
@@ -385,6 +388,7 @@ class PhaseOptions(_Checks):
     limb_margin_deg: float = 15.0
     spacing_radii: float = 0.4
     edge_sigma_px: float = 0.25
+    full_sigma_px: float = 0.3
 
     def __post_init__(self):
         if not isinstance(self.aware, bool):
@@ -400,7 +404,7 @@ class PhaseOptions(_Checks):
                 or any(b <= a for a, b in zip(q[:-1], q[1:]))):
             self._bad("seed_percentiles", "a non-empty increasing list of percentiles in [0, 100]")
         self._within("edge_fraction", 0.05, 0.95, "a fraction in [0.05, 0.95]")
-        self._finite(("min_contrast", "edge_sigma_px"))
+        self._finite(("min_contrast", "edge_sigma_px", "full_sigma_px"))
         self._within("limb_margin_deg", 0.0, 60.0, "an angle in [0, 60] deg")
         self._within("spacing_radii", 0.1, 4.0, "a multiple in [0.1, 4] of the expected radius")
 

@@ -51,7 +51,8 @@ Steps (`process_moon`)
    (34)-(36) on the inlier rays (a short arc gives a large covariance by itself), plus, with the
    known radius, ``edge_sigma_px`` of radial edge bias and the radius's uncertainty through
    de/dalpha (`vision.fitting.alpha_sensitivity`): with alpha fixed, a radial bias moves the
-   centre.
+   centre; a disc fitted all round without a known lit side gets ``full_sigma_px`` for a
+   terminator that may run within a pixel of its limb.
 """
 from __future__ import annotations
 
@@ -249,17 +250,20 @@ def fit_lit_limb(H, sel, s, alpha_fit, thr, margin, need, n_iter: int = 8):
 
 
 def moon_covariance(rays, J, fit: ConeFit, H_inl, known: bool, pa: float, sigma_alpha: float,
-                    tc: TargetConfig) -> np.ndarray:
+                    tc: TargetConfig, full: bool = False) -> np.ndarray:
     """Step 6: 003 eq. (33) with eqs. (34)-(36) on the inliers (constrained with the known
     radius, linear with the free one), plus, with the known radius,
     ``((edge_sigma_px pa)^2 + sigma_alpha^2) g g^T``, g = de/dalpha: the edge's radial bias and
-    the radius's own uncertainty both act as an error of alpha."""
+    the radius's own uncertainty both act as an error of alpha; ``full`` (fitted all round, no
+    lit side known): ``(full_sigma_px pa)^2`` per axis of the tangent plane."""
     if known:
         P = direction_covariance(rays, J, fit.e_c, tc.fit.R_px2, tc.fit.L_px, method="constrained").P_c
         g = alpha_sensitivity(H_inl, fit.e_c, fit.alpha) * math.hypot(tc.phase.edge_sigma_px * pa, sigma_alpha)
         P = P + np.outer(g, g)
     else:
         P = direction_covariance(rays, J, fit.n, tc.fit.R_px2, tc.fit.L_px, method="linear").P_c
+    if full:
+        P = P + (tc.phase.full_sigma_px * pa) ** 2 * (np.eye(3) - np.outer(fit.e_c, fit.e_c))
     return 0.5 * (P + P.T)
 
 
@@ -319,7 +323,7 @@ def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
         dark = _dark_outside(a, camera, mask, t, H[inl], fit.e_c, fit.alpha, tc.side_check.step_px * pa_c)
         if not dark >= tc.side_check.min_agree:
             res.reason = f"bright just outside the fitted limb ({dark:.2f} of the probes dark)"
-    return res, (edge, H, inl, fit, pa_c)
+    return res, (edge, H, inl, fit, pa_c, st[1] is None)
 
 
 def _accept(fit: ConeFit, known: bool, alpha: float, pa: float, predicted, tc: TargetConfig) -> str:
@@ -393,10 +397,10 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
     timings["moon.detect"] = t1 - t0
     if not good:
         return out
-    win, (edge, H, inl, fit, pa) = min(good, key=lambda q: q[0].residual)
+    win, (edge, H, inl, fit, pa, full) = min(good, key=lambda q: q[0].residual)
     out.winner = win.index
     rays, J = unproject_jacobian(camera, edge.points[inl])
-    P = moon_covariance(rays, J, fit, H[inl], known, pa, sigma_alpha, tc)
+    P = moon_covariance(rays, J, fit, H[inl], known, pa, sigma_alpha, tc, full)
     timings["moon.covariance"] = time.perf_counter() - t1
     out.points, out.inlier_mask = edge.points, inl
     lam = float(largest_eigenvalue(P))

@@ -1,10 +1,10 @@
 """The Moon (vision/moon.py) on rendered frames (tests/moon_frames.py: 20-100 % lit, 8-60 px across,
 limb signal 0.04-2 of full scale, noise, JPEG): found fraction, direction RMS and 3-sigma
 containment with the replay's prior (the Sun's direction and the Moon's apparent radius), with the
-Sun only, and without any prior; through a rectilinear (pinhole-shaped) lens beside; the
-fixed-threshold full-disc fit (``moon.phase.aware = false``) on the same frames for comparison;
-the Moon above the Earth's limb in frames exposed for the Earth; and the cost of enabling the Moon
-on an ATEK Earth + Sun frame. QUICK: 60 frames instead of 200."""
+Sun only, with the radius only, and without any prior; through a rectilinear (pinhole-shaped)
+lens beside; the fixed-threshold full-disc fit (``moon.phase.aware = false``) on the same frames
+for comparison; the Moon above the Earth's limb in frames exposed for the Earth; and the cost of
+enabling the Moon on an ATEK Earth + Sun frame. QUICK: 60 frames instead of 200."""
 from __future__ import annotations
 
 import dataclasses
@@ -29,7 +29,8 @@ def _moon_only(aware: bool = True) -> VisionConfig:
 def _run(frames, cfg, prior: str):
     err, sig, ms = [], [], []
     for f in frames:
-        kw = {"ephemeris": dict(sun_c=f.sun_c, moon_alpha=f.alpha), "sun": dict(sun_c=f.sun_c), "none": {}}[prior]
+        kw = {"ephemeris": dict(sun_c=f.sun_c, moon_alpha=f.alpha), "sun": dict(sun_c=f.sun_c),
+              "radius": dict(moon_alpha=f.alpha), "none": {}}[prior]
         res = process_frame(f.image, f.camera, cfg, prior=FramePrior(**kw) if kw else None)
         ms.append(1e3 * res.timings["total"])
         rec = res.record("moon")
@@ -76,7 +77,7 @@ def _atek_cost(bench):
 
 def test_bench_moon(bench, is_quick):
     frames = moon_set(60 if is_quick else 200, seed=7)
-    out = {p: _run(frames, _moon_only(), p) for p in ("ephemeris", "sun", "none")}
+    out = {p: _run(frames, _moon_only(), p) for p in ("ephemeris", "sun", "radius", "none")}
     old = _run(frames, _moon_only(aware=False), "ephemeris")
     rect = _run(moon_set(30 if is_quick else 100, seed=8, lens="rectilinear"), _moon_only(), "ephemeris")
     for p, o in out.items():
@@ -87,7 +88,8 @@ def test_bench_moon(bench, is_quick):
                           for f in frames]))
     e = out["ephemeris"]
     bench("vision.moon_rms_deg", e["rms"], "deg", baseline=0.02, baseline_name="acceptance target 0.02 deg",
-          sun_only_rms=out["sun"]["rms"], no_prior_rms=out["none"]["rms"], median_pixel_deg=pa,
+          sun_only_rms=out["sun"]["rms"], radius_only_rms=out["radius"]["rms"], no_prior_rms=out["none"]["rms"],
+          median_pixel_deg=pa,
           p95=e["p95"], n=len(frames), rectilinear_rms=rect["rms"], rectilinear_found=rect["found"],
           rectilinear_contained=rect["contained"],
           note="prior: Sun direction and apparent radius (the replay's); equidistant lens, rectilinear beside")
@@ -96,6 +98,7 @@ def test_bench_moon(bench, is_quick):
           sun_only_found=out["sun"]["found"], no_prior_found=out["none"]["found"], n=len(frames))
     bench("vision.moon_cov_3sigma_containment", e["contained"], "fraction", baseline=0.97,
           baseline_name="acceptance target 0.97", sun_only=out["sun"]["contained"],
+          radius_only=out["radius"]["contained"],
           no_prior=out["none"]["contained"])
     bench("vision.moon_ms_per_frame", e["ms"], "ms", note="400x300 Moon frames, Moon only")
     rng = np.random.default_rng(3)
