@@ -142,3 +142,23 @@ def moon_over_earth(rng: np.random.Generator, diameter_px: float, lit_fraction: 
     fr = render.render_frame(camera, R_ec, x, x + AU_M * s_e, x + dist * m_e, seed=seed, options=opts)
     img = cv2.imdecode(np.frombuffer(render.encode_jpeg(fr.image, 90), np.uint8), cv2.IMREAD_COLOR)
     return MoonFrame(img, camera, fr.e_c_moon, fr.e_c_sun, alpha, dist, lit_fraction, math.nan)
+
+
+def sun_and_moon(rng: np.random.Generator, camera, seed: int = 0) -> tuple[MoonFrame, object]:
+    """The Sun near one corner of ``camera``'s image and the Moon near the opposite one (about
+    90 deg apart: a half Moon), 500 km above the Earth looking away from it, auto exposure (the
+    Sun saturated, its glare over the sky). Returns (MoonFrame, the rendered frame)."""
+    w, h = camera.width, camera.height
+    x = np.array([earth.A + 500e3, 0.0, 0.0])
+    zen = _unit(x)
+    bore = _unit(zen + 0.3 * _perp(zen, rng))
+    xc = _perp(bore, rng)
+    R_ec = np.column_stack([xc, np.cross(bore, xc), bore])
+    s_c = unproject(camera, np.array([rng.uniform(0.03, 0.1) * w, rng.uniform(0.06, 0.18) * h]))
+    m_c = unproject(camera, np.array([rng.uniform(0.86, 0.96) * w, rng.uniform(0.8, 0.92) * h]))
+    dist = rng.uniform(356e6, 406e6)
+    fr = render.render_frame(camera, R_ec, x, x + AU_M * (R_ec @ s_c), x + dist * (R_ec @ m_c), seed=seed,
+                             options=render.RenderOptions(clouds=False, payload_mask=None))
+    k = (1.0 - float(s_c @ m_c)) / 2.0
+    return MoonFrame(fr.image, camera, fr.e_c_moon, fr.e_c_sun, math.asin(MOON_RADIUS_M / dist), dist, k,
+                     math.nan), fr

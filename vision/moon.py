@@ -27,8 +27,9 @@ Steps (`process_moon`)
    over the next percentile (a Moon in the glow above the Earth's limb joins the glow at the
    sky's level; a higher seed only splits regions); with a predicted
    direction only the rows its gate reaches (`vision.image_geometry.gate_search_rows`).
-2. Per candidate (`trace_candidate`): size gates from the expected radius in pixels where the
-   candidate lies (`fast_pixel_angle`, any lens model), a window of the frame around it, its peak
+2. Per candidate: size gates from the expected radius in pixels where the candidate lies
+   (`size_gate`, `fast_pixel_angle`, any lens model; of those passing, the
+   ``scoring.max_candidates`` with the brightest border pixels go on), then (`trace_candidate`) a window of the frame around it, its peak
    (95th percentile of its seeded pixels) and its local background (median of the window's rim),
    and the edge re-traced at ``bg + edge_fraction (peak - bg)`` (`vision.borders.find_borders`
    on the window): a dim Moon's edge is where its own brightness steps.
@@ -75,7 +76,7 @@ from vision.ransac import ransac_cone
 from vision.results import CandidateResult, TargetResult, VectorRecord
 from vision.scoring import candidate_rng
 
-__all__ = ["expected_alpha", "seed_threshold", "moon_detection", "outward_normals", "trace_candidate",
+__all__ = ["expected_alpha", "seed_threshold", "moon_detection", "outward_normals", "size_gate", "trace_candidate",
            "sun_image_direction", "lit_side", "lit_limb_start", "fit_lit_limb", "moon_covariance",
            "process_moon"]
 
@@ -131,19 +132,25 @@ def outward_normals(points: np.ndarray, closed: bool, k: int = 2) -> np.ndarray:
     return n / nn[:, None]
 
 
-_TOO_LARGE = "across > the Moon's"   # the reason a higher seed threshold can cure
+def size_gate(cand: Candidate, r_px: float, tc: TargetConfig) -> str:
+    """"" when the candidate's larger extent lies between the Moon's expected radius and diameter
+    ``r_px`` [px] (+- ``phase.radius_tol``, +3 px of blur), else the reason."""
+    ph = tc.phase
+    ext = float((cand.points.max(axis=0) - cand.points.min(axis=0)).max()) + 1.0
+    if ext > 2.0 * r_px * (1.0 + ph.radius_tol) + 3.0:
+        return f"{ext:.0f} px across > the Moon's {2 * r_px:.1f} px (+{ph.radius_tol:g})"
+    if ext < r_px * (1.0 - ph.radius_tol) - 1.0:
+        return f"{ext:.0f} px across < the Moon's radius {r_px:.1f} px (-{ph.radius_tol:g})"
+    return ""
 
 
 def trace_candidate(a: np.ndarray, cand: Candidate, t_seed: float, r_px: float, tc: TargetConfig):
     """Step 2 of the module docstring: (edge Candidate in frame pixels, threshold) or a reason."""
     ph = tc.phase
-    pts = cand.points
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    ext = float((hi - lo).max()) + 1.0
-    if ext > 2.0 * r_px * (1.0 + ph.radius_tol) + 3.0:
-        return f"{ext:.0f} px {_TOO_LARGE} {2 * r_px:.1f} px (+{ph.radius_tol:g})"
-    if ext < r_px * (1.0 - ph.radius_tol) - 1.0:
-        return f"{ext:.0f} px across < the Moon's radius {r_px:.1f} px (-{ph.radius_tol:g})"
+    why = size_gate(cand, r_px, tc)
+    if why:
+        return why
+    lo, hi = cand.points.min(axis=0), cand.points.max(axis=0)
     h, w = a.shape[:2]
     mg = int(math.ceil(r_px)) + 3
     u0, v0 = max(0, int(lo[0]) - mg), max(0, int(lo[1]) - mg)
@@ -287,10 +294,10 @@ def _dark_outside(image, camera, mask, threshold, rays, e, alpha, step):
     return float(np.mean(b < threshold))
 
 
-def _score(k, cand, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
-    """Steps 2-5 for candidate k: (CandidateResult, payload for the covariance or None)."""
+def _score(k, cand, pa_c, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
+    """Steps 2-5 for candidate k (``pa_c``: the pixel angle where it lies): (CandidateResult,
+    payload for the covariance or None)."""
     res = CandidateResult(index=k, n_pixels=cand.n_pixels)
-    pa_c = float(fast_pixel_angle(camera, cand.points.mean(axis=0)[None, :])[0])
     r_px = alpha / pa_c
     tr = trace_candidate(a, cand, t_seed, r_px, tc)
     if isinstance(tr, str):
@@ -350,23 +357,49 @@ def _search(a, camera, mask, tc: TargetConfig, hist, t_seed: float, alpha: float
     return detect(a, dc, mask, hist=hist, rows=rows)
 
 
+def _plausible(cands, a, camera, alpha: float, tc: TargetConfig):
+    """Size gate (`size_gate`'s bounds) of all candidates at once: (indices passing, brightest
+    first by the largest brightness on their border, at most ``scoring.max_candidates``; pixel
+    angle at each candidate's centroid; count too large; count too small). Noise and glare give
+    hundreds of Moon-sized borders; the Moon's lit limb is a step, so its border pixels are as
+    bright as its limb."""
+    n = np.array([c.n_pixels for c in cands])
+    off = np.concatenate([[0], np.cumsum(n)[:-1]])
+    P = np.concatenate([c.points for c in cands])
+    ext = (np.maximum.reduceat(P, off, axis=0) - np.minimum.reduceat(P, off, axis=0)).max(axis=1) + 1.0
+    pa = fast_pixel_angle(camera, np.add.reduceat(P, off, axis=0) / n[:, None])
+    r = alpha / pa
+    big = ext > 2.0 * r * (1.0 + tc.phase.radius_tol) + 3.0
+    small = ext < r * (1.0 - tc.phase.radius_tol) - 1.0
+    b = np.maximum.reduceat(a[P[:, 1].astype(np.int64), P[:, 0].astype(np.int64)].mean(axis=1), off)
+    idx = np.flatnonzero(~big & ~small)
+    idx = idx[np.lexsort((-n[idx], -b[idx]))][:tc.scoring.max_candidates]
+    return idx, pa, int(big.sum()), int(small.sum())
+
+
 def _candidates(out: TargetResult, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
-    """Steps 2-5 on ``out.detection``'s longest candidates: the accepted (result, payload) pairs;
-    ``out.candidates`` and ``out.reason`` set."""
+    """Steps 2-5 on ``out.detection``'s plausible candidates (`_plausible`): (the accepted
+    (result, payload) pairs, whether a candidate was larger than the Moon); ``out.candidates``
+    and ``out.reason`` set."""
     det = out.detection
     if not det.candidates:
         out.reason = f"no candidate: {det.reason}"
-        return []
-    order = sorted(range(len(det.candidates)), key=lambda i: -det.candidates[i].n_pixels)
-    scored = [_score(i, det.candidates[i], a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
-                     frame_seed) for i in order[:tc.scoring.max_candidates]]
+        return [], False
+    cands = det.candidates
+    idx, pa, n_big, n_small = _plausible(cands, a, camera, alpha, tc)
+    scored = [_score(int(i), cands[i], float(pa[i]), a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
+                     frame_seed) for i in idx]
     out.candidates = [r for r, _ in scored]
     good = [(r, p) for r, p in scored if not r.reason]
     if not good:
-        best = min(out.candidates, key=lambda r: r.residual)
-        out.reason = (f"no accepted candidate among {len(det.candidates)} at seed threshold {t_seed:.0f} "
-                      f"(best: candidate {best.index}, {best.reason})")
-    return good
+        sizes = f"{n_big} larger than the Moon, {n_small} smaller"
+        if scored:
+            best = min(out.candidates, key=lambda r: r.residual)
+            out.reason = (f"no accepted candidate among {len(cands)} at seed threshold {t_seed:.0f} ({sizes}; "
+                          f"best: candidate {best.index}, {best.reason})")
+        else:
+            out.reason = f"no candidate of the Moon's size among {len(cands)} at seed threshold {t_seed:.0f} ({sizes})"
+    return good, n_big > 0
 
 
 def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None, predicted, sun_c,
@@ -390,8 +423,8 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
             continue
         tried.append(t_seed)
         out = TargetResult("moon", _search(a, camera, mask, tc, hist, t_seed, alpha, predicted))
-        good = _candidates(out, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed)
-        if good or not any(_TOO_LARGE in r.reason for r in out.candidates):
+        good, too_large = _candidates(out, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed)
+        if good or not too_large:
             break           # a higher seed only splits regions larger than the Moon
     t1 = time.perf_counter()
     timings["moon.detect"] = t1 - t0
