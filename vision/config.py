@@ -35,7 +35,7 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.candidates import DetectionConfig
 
 __all__ = ["TARGETS", "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "FlankOptions",
-           "CalibrationOptions", "LimbOptions", "TargetConfig", "VisionConfig", "FramePrior",
+           "CalibrationOptions", "LimbOptions", "PhaseOptions", "TargetConfig", "VisionConfig", "FramePrior",
            "default_config", "resolve_search_lines"]
 
 TARGETS = ("earth", "sun", "moon")
@@ -333,6 +333,83 @@ class LimbOptions(_Checks):
 
 
 @dataclass(frozen=True)
+class PhaseOptions(_Checks):
+    """The Moon as cameras see it (`vision.moon`; Moon only): a phase-aware fit of the lit limb,
+    search spacing and size gates from the expected apparent radius, brightness thresholds relative
+    to the candidate.
+
+    Attributes
+    ----------
+    aware : use `vision.moon.process_moon` (lit limb only, relative thresholds); false: the Moon is
+        processed as the Sun (a full disc above a fixed threshold).
+    radius_deg : expected apparent radius [deg] when the prior gives none (`FramePrior.moon_alpha`):
+        the Moon's radius over its mean distance, 1737.4 km / 384 400 km.
+    radius_sigma : 1-sigma of the expected radius as a fraction of it, without the prior's radius
+        (the distance varies 356-406 thousand km: +-6.5 %, about 3.5 % rms); the limb is fitted
+        with ``radius_deg`` and this term goes into the covariance.
+    free_radius : without the prior's radius, fit the radius instead (003 §5's free-alpha fit, as
+        for the Sun): unbiased on gibbous Moons, but pulled by the fading horns of crescents.
+    radius_tol : accepted fitted radius (free-radius fit) and size gates, as a fraction of the
+        expected radius (the distance varies by +-6 %; the lens's scale across the image).
+    seed_above : seed threshold of the search, brightness above the frame's dark level (its
+        ``seed_percentiles``) [0-255]: a dim half Moon peaks at ~57/255.
+    seed_percentiles : percentiles of the frame brightness taken as its dark level, tried in
+        turn until a candidate is accepted: the first the sky's, as long as it covers that share of
+        the frame (the median is the Earth's when the Earth fills half of it, and would put the
+        seed above a dim Moon); the next for a Moon in the glow above the Earth's limb, which joins
+        the glow at the sky's level.
+    edge_fraction : the edge threshold of each candidate, as a fraction of its peak above its local
+        background (0..1): the lit limb of a Lommel-Seeliger Moon is a step from the background to
+        its brightest value, crossed at its middle by 0.5.
+    min_contrast : least peak above the local background [0-255] of an accepted candidate.
+    limb_margin_deg : edge points whose outward normal (image) or whose position about the fitted
+        centre (sphere) is within this angle of perpendicular to the Sun's projected direction are
+        left out (the cusps, where the limb meets the terminator).
+    spacing_radii : search-line spacing in expected radii at the coarsest pixel scale of the
+        camera: a Moon lit at the fraction k is 2 k radii thick along the Sun's projected
+        direction (its dim horns may fall below the seed threshold), so 0.4 finds Moons from 20 %
+        lit in any orientation.
+    edge_sigma_px : 1-sigma radial bias [px] of the threshold edge against the true limb
+        (covariance term of the known-radius fit, whose direction moves with its radius).
+    full_sigma_px : 1-sigma [px] per axis added to a disc fitted all round without a known lit
+        side (no Sun direction, no terminator found): a nearly full Moon's terminator may run up
+        to a pixel inside half of its outline, moving the centre by up to half a pixel.
+    """
+
+    aware: bool = True
+    radius_deg: float = 0.259
+    radius_sigma: float = 0.035
+    free_radius: bool = False
+    radius_tol: float = 0.25
+    seed_above: float = 12.0
+    seed_percentiles: tuple = (5.0, 50.0, 90.0)
+    edge_fraction: float = 0.5
+    min_contrast: float = 20.0
+    limb_margin_deg: float = 15.0
+    spacing_radii: float = 0.4
+    edge_sigma_px: float = 0.25
+    full_sigma_px: float = 0.3
+
+    def __post_init__(self):
+        if not isinstance(self.aware, bool):
+            self._bad("aware", "true or false")
+        self._within("radius_deg", 1e-3, 10.0, "an apparent radius in (0, 10] deg")
+        self._within("radius_sigma", 0.0, 0.5, "a fraction in [0, 0.5]")
+        if not isinstance(self.free_radius, bool):
+            self._bad("free_radius", "true or false")
+        self._within("radius_tol", 0.01, 0.9, "a fraction in [0.01, 0.9]")
+        self._within("seed_above", 1.0, 254.0, "a brightness step in [1, 254]")
+        q = tuple(self.seed_percentiles)
+        if (not q or not all(isinstance(v, (int, float)) and 0.0 <= v <= 100.0 for v in q)
+                or any(b <= a for a, b in zip(q[:-1], q[1:]))):
+            self._bad("seed_percentiles", "a non-empty increasing list of percentiles in [0, 100]")
+        self._within("edge_fraction", 0.05, 0.95, "a fraction in [0.05, 0.95]")
+        self._finite(("min_contrast", "edge_sigma_px", "full_sigma_px"))
+        self._within("limb_margin_deg", 0.0, 60.0, "an angle in [0, 60] deg")
+        self._within("spacing_radii", 0.1, 4.0, "a multiple in [0.1, 4] of the expected radius")
+
+
+@dataclass(frozen=True)
 class TargetConfig(_Checks):
     """Processing of one target (Earth, Sun or Moon): the body, what is accepted, and the options
     of each stage.
@@ -359,8 +436,9 @@ class TargetConfig(_Checks):
         brightness edge, which lies between them and their dark neighbours: half a pixel. The
         Earth cone is shrunk by this angle (without it the nadir is biased by ~0.03 deg on
         rendered frames); the Sun/Moon radius absorbs it.
-    scoring, ransac, side_check, fit, limb : the stages' options (`ScoringOptions`,
-        `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`; limb: Earth only).
+    scoring, ransac, side_check, fit, limb, phase : the stages' options (`ScoringOptions`,
+        `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`, `PhaseOptions`; limb:
+        Earth only; phase: Moon only).
     """
 
     enabled: bool = True
@@ -378,6 +456,7 @@ class TargetConfig(_Checks):
     side_check: SideCheckOptions = SideCheckOptions()
     fit: FitOptions = FitOptions()
     limb: LimbOptions = LimbOptions()
+    phase: PhaseOptions = PhaseOptions()
 
     def __post_init__(self):
         self._ints(("min_pixels",))
@@ -396,7 +475,9 @@ class VisionConfig:
     The defaults are those of the ATEK-like cameras: Earth with the threshold edge at d = 45 km
     measured on rendered frames and the fraction-of-peak limb edge; the Sun saturated (threshold
     250, 003 §5) and searched on lines spaced for 0.5 deg (`resolve_search_lines`); the Moon off
-    (rarely in view in the ATEK flight; enable per scenario).
+    (rarely in view in the ATEK flight; enable per scenario or ``--moon``), processed phase-aware
+    (`PhaseOptions`, `vision.moon`) with the pixel noise of its threshold edge (R = 0.1 px^2,
+    L = 4 px: quantisation of a hard step, calibrated on rendered Moons, docs/vision.md).
 
     ``sphere_radius_m``: radius [m] of the substitute sphere when there is no position prior (003
     §2.8; None = ``nav.earth.R_MEAN``, or the Gaussian radius at ``FramePrior.lat``).
@@ -419,7 +500,7 @@ class VisionConfig:
         detection=DetectionConfig(BinarizeConfig(threshold=120.0), SearchConfig(alpha_min_deg=0.5), 12),
         min_pixels=12, max_residual=1e-6, alpha_max_deg=1.0,
         ransac=RansacOptions(min_inlier_fraction=0.5),
-        fit=FitOptions(R_px2=9.0))
+        fit=FitOptions(R_px2=0.1, L_px=4.0))
     sphere_radius_m: float | None = None
 
     def target(self, name: str) -> TargetConfig:
@@ -459,10 +540,13 @@ class FramePrior:
     ``R_ec.T @ nav.ephemeris.sun_direction_e(t, x_e)``): Sun/Moon candidates further than
     ``TargetConfig.gate_deg`` from them are rejected (lens-flare ghosts, glints; 004 §3.4); with
     x_e and R_ec, Earth candidates further than the Earth's ``gate_deg`` from the predicted
-    geocentric nadir ``R_ec.T @ (-x_e / |x_e|)`` are rejected too (glare edges)."""
+    geocentric nadir ``R_ec.T @ (-x_e / |x_e|)`` are rejected too (glare edges). ``moon_alpha``:
+    the Moon's apparent radius [rad], ``asin(R_moon / distance)`` from the ephemeris: the Moon's
+    limb is then fitted with that radius (`vision.moon`), else with a free one."""
 
     x_e: np.ndarray | None = None
     R_ec: np.ndarray | None = None
     lat: float | None = None
     sun_c: np.ndarray | None = None
     moon_c: np.ndarray | None = None
+    moon_alpha: float | None = None

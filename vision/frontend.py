@@ -329,6 +329,17 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
         if not tc.enabled:
             continue
         is_earth = name == "earth"
+        if name == "moon" and tc.phase.aware:
+            from vision.moon import process_moon
+            sun = targets.get("sun")
+            sun_c = prior.sun_c if prior is not None and prior.sun_c is not None else (
+                sun.record.e_c if sun is not None and sun.record is not None else None)
+            tr = process_moon(image, camera, mask, tc, prior, _predicted(name, prior), sun_c, frame_seed, timings,
+                              hists, (t_ns, camera_id))
+            targets[name] = tr
+            if tr.record is None:
+                reasons[name] = tr.reason
+            continue
         tr = _process_target(name, image, camera, mask, tc, model if is_earth else None, frame_seed, timings,
                              baseline and is_earth, _predicted(name, prior), limb if is_earth else None, hists,
                              (t_ns, camera_id))

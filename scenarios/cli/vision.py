@@ -1,5 +1,12 @@
 """``horizon-nav vision``: Earth-nadir, Sun and Moon vectors (with covariance) from camera images.
 
+Per-image metadata (time, height, latitude, position) comes from ``--meta`` (a CSV/JSON sidecar,
+`scenarios.config.image_meta`) or applies to every image (``--height``, ``--lat``); ``--earth``,
+``--sun``, ``--moon`` (and ``--no-...``) switch the targets without a config file. With a time the
+Moon is fitted with its apparent radius from the ephemeris; the Sun found in the same image gives
+the Moon's phase geometry (`vision.moon`). ``--json`` prints one object per image and line:
+``{"image", "earth", "sun", "moon", "reasons", ...}`` (`image_entry`).
+
 Standalone use has no position or attitude prior, so the Earth is the substitute sphere of 003
 §2.8 (radius: the Gaussian radius of curvature at ``--lat``, or the mean Earth radius) and the
 nadir is the direction to that sphere's centre (close to the local vertical), not the geocentric
@@ -20,16 +27,26 @@ HELP = "Earth-nadir / Sun / Moon direction vectors with covariance from camera i
 
 
 def add_arguments(p) -> None:
+    import argparse
+
     p.add_argument("images", nargs="+", metavar="IMAGE", help="image files (JPEG, PNG, ...)")
-    p.add_argument("--camera", required=True, help="camera file (TOML, scenarios/library/cameras/)")
-    p.add_argument("--height", type=float, required=True, help="height above the ellipsoid [m]")
+    p.add_argument("--camera", required=True, help="camera file (read by scenarios/config/camera.py; "
+                   "examples in scenarios/library/cameras/)")
+    p.add_argument("--height", type=float, default=None,
+                   help="height above the ellipsoid [m] of every image (the Earth needs it, from here or --meta)")
     p.add_argument("--lat", type=float, default=None,
                    help="geodetic latitude [deg] for the local radius of curvature (default: mean radius)")
+    p.add_argument("--meta", default=None, metavar="FILE",
+                   help="per-image metadata, CSV or JSON matched by image file name: time, height_m, lat_deg, "
+                        "lon_deg or x_m/y_m/z_m (scenarios/config/image_meta.py); overrides --height/--lat")
+    for t, on in (("earth", "on"), ("sun", "on"), ("moon", "off")):
+        p.add_argument(f"--{t}", action=argparse.BooleanOptionalAction, default=None,
+                       help=f"process the {t.capitalize()} or not (default: the config file's, else {on})")
     p.add_argument("--config", default=None, help="vision config TOML of overrides (default: none; example: "
                    "scenarios/library/vision/default.toml)")
     p.add_argument("--mask", default=None, help="payload mask image (non-zero = ignored), the camera's size")
     p.add_argument("--annotate", default=None, metavar="DIR", help="write annotated PNGs into DIR")
-    p.add_argument("--json", action="store_true", help="print JSON (one object per image)")
+    p.add_argument("--json", action="store_true", help="print JSON, one object per image and line")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default 0)")
 
 
@@ -42,73 +59,155 @@ def _record_dict(r) -> dict:
             "alpha_deg": math.degrees(r.alpha), "model": r.model}
 
 
+def _target_dict(r, cov_c: bool = True) -> dict:
+    """The ``--json`` entry of one target: vector, covariance [rad^2], overbound, fit figures."""
+    return {"vector_c": [float(v) for v in r.e_c], "cov_c": np.asarray(r.P_c).round(18).tolist(),
+            "cov_overbound_c": np.asarray(r.P_overbound).round(18).tolist(), "sigma_deg": r.sigma_deg,
+            "alpha_deg": math.degrees(r.alpha), "residual_rad2": r.residual, "pixel_count": r.pixel_count,
+            "inlier_count": r.inlier_count, "conic_type": r.conic_type}
+
+
+def image_entry(name: str, res, cfg) -> dict:
+    """One image's ``--json`` object: ``{"image", "earth", "sun", "moon"}`` (each target's
+    vector and covariance, or null with its reason in ``"reasons"``; the Earth with the edge
+    height its nadir was fitted with, `vision.results.earth_edge_height`), plus the model, the
+    vector records and the stage timings."""
+    from vision.results import earth_edge_height
+
+    out = {"image": name}
+    for t in ("earth", "sun", "moon"):
+        r = res.record(t)
+        out[t] = None if r is None else _target_dict(r)
+    if out["earth"] is not None:
+        h, sig = earth_edge_height(res.targets["earth"], cfg.earth)
+        out["earth"].update(model=res.model, edge_height_m=float(h), edge_height_sigma_m=float(sig))
+    out["reasons"] = dict(res.reasons)
+    for t in ("earth", "sun", "moon"):
+        if not cfg.target(t).enabled:
+            out["reasons"][t] = f"not processed (--no-{t} or the config's [{t}] enabled = false)"
+    out.update(model=res.model, vectors=[_record_dict(r) for r in res.records],
+               time_ms={k: round(v * 1e3, 3) for k, v in res.timings.items()})
+    return out
+
+
+def _config(args, cam):
+    """The vision config of the call: the file's, with --earth/--sun/--moon switched."""
+    import dataclasses
+
+    from scenarios.config.vision import load_vision_config
+
+    cfg = load_vision_config(args.config, camera=cam)
+    kw = {t: dataclasses.replace(cfg.target(t), enabled=on)
+          for t, on in (("earth", args.earth), ("sun", args.sun), ("moon", args.moon)) if on is not None}
+    return dataclasses.replace(cfg, **kw) if kw else cfg
+
+
+def _frame_inputs(path: Path, meta, args, lat_cli):
+    """(height_m, FramePrior or None) of one image from --meta's row (if any) and --height/--lat;
+    with a time, the Moon's apparent radius from the ephemeris distance (from the position when
+    known, else from the Earth's centre: within 1.7 % below 6400 km)."""
+    from nav import ephemeris
+    from vision.frontend import FramePrior
+
+    m = None
+    if meta is not None:
+        m = meta.get(path.name)
+        if m is None:
+            raise UserError(f"--meta {args.meta}: no row for image {path.name}")
+    h = m.height_m if m is not None and m.height_m is not None else args.height
+    lat = m.lat if m is not None and m.lat is not None else lat_cli
+    moon_alpha = None
+    if m is not None and m.time_ns is not None:
+        try:
+            moon_e = ephemeris.moon_position_e(m.time_ns)
+        except ValueError as exc:
+            raise UserError(f"--meta {args.meta}, image {path.name}, column time: {exc}") from None
+        x = m.x_e if m.x_e is not None else np.zeros(3)
+        moon_alpha = float(ephemeris.apparent_radius(moon_e, x, ephemeris.MOON_RADIUS))
+    kw = {k: v for k, v in (("lat", lat), ("moon_alpha", moon_alpha)) if v is not None}
+    return h, (FramePrior(**kw) if kw else None)
+
+
+def _check_cli(args):
+    """--height/--lat checked; returns the latitude [rad] or None."""
+    if args.height is not None and not (math.isfinite(args.height) and 0 < args.height < 5e7):
+        raise UserError(f"--height {args.height}: expected the height above the ellipsoid in metres (> 0)")
+    if args.lat is None:
+        return None
+    if not -90.0 <= args.lat <= 90.0:
+        raise UserError(f"--lat {args.lat}: expected a latitude in degrees, -90..90")
+    return math.radians(args.lat)
+
+
+def _read_image(path: Path, args, cam):
+    from scenarios.flightlog.jpeg import decode_frame
+
+    if not path.is_file():
+        raise UserError(f"{path}: image file not found")
+    data = np.fromfile(path, dtype=np.uint8)
+    img = decode_frame(data.tobytes()) if data.size else None
+    if img is None:
+        raise UserError(f"{path}: not an image OpenCV can decode (expected JPEG, PNG, ...)")
+    if img.shape[:2] != (cam.height, cam.width):
+        raise UserError(f"{path}: size {img.shape[1]}x{img.shape[0]}, but camera file {args.camera} "
+                        f"is {cam.width}x{cam.height}")
+    return img
+
+
+def _print_text(path, res, model_note) -> None:
+    print(f"{path}:")
+    for r in res.records:
+        v = ", ".join(f"{c:+.6f}" for c in r.e_c)
+        print(f"  {r.target:5s} e_c = [{v}]  sigma {r.sigma_deg:.3f} deg (1s, eq. 37)  "
+              f"residual {r.residual:.3g} rad^2  {r.inlier_count}/{r.pixel_count} px  "
+              f"{r.conic_type}  alpha {math.degrees(r.alpha):.3f} deg")
+    for t, why in res.reasons.items():
+        print(f"  {t:5s} no vector: {why}")
+    if res.model == "sphere":
+        print(f"  earth model: {model_note}")
+
+
 def run(args) -> int:
     import cv2
 
     from scenarios.config.camera import load_camera, read_payload_mask
-    from scenarios.flightlog.jpeg import decode_frame
-    from scenarios.config.vision import load_vision_config
+    from scenarios.config.image_meta import read_image_meta
     from vision import mask as vmask
-    from vision.frontend import FramePrior, process_frame
+    from vision.frontend import process_frame
 
     cam = load_camera(args.camera)
     if not args.json:
         from vision.camera import describe
         print(describe(cam))
-    cfg = load_vision_config(args.config, camera=cam)
-    if not (math.isfinite(args.height) and 0 < args.height < 5e7):
-        raise UserError(f"--height {args.height}: expected the height above the ellipsoid in metres (> 0)")
-    lat = None
-    if args.lat is not None:
-        if not -90.0 <= args.lat <= 90.0:
-            raise UserError(f"--lat {args.lat}: expected a latitude in degrees, -90..90")
-        lat = math.radians(args.lat)
+    cfg = _config(args, cam)
+    lat_cli = _check_cli(args)
+    meta = read_image_meta(args.meta) if args.meta else None
     mask = None
     if args.mask:
         mask = vmask.from_binary(read_payload_mask(args.mask, cam, f"--mask {args.mask}"))
     out_dir = Path(args.annotate) if args.annotate else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    model_note = ("sphere of radius " + ("the Gaussian radius of curvature at --lat" if lat is not None
-                                          else "the mean Earth radius")
-                  + " (no position/attitude prior: the nadir is the substitute sphere's centre, "
-                    "003 §2.8, not the geocentric direction)")
+    model_note = ("sphere of radius the Gaussian radius of curvature at the latitude, else the mean Earth radius"
+                  " (no position/attitude prior: the nadir is the substitute sphere's centre, "
+                  "003 §2.8, not the geocentric direction)")
     rng = np.random.default_rng(args.seed)
-    results = []
     for path in args.images:
         p = Path(path)
-        if not p.is_file():
-            raise UserError(f"{path}: image file not found")
-        data = np.fromfile(p, dtype=np.uint8)
-        img = decode_frame(data.tobytes()) if data.size else None
-        if img is None:
-            raise UserError(f"{path}: not an image OpenCV can decode (expected JPEG, PNG, ...)")
-        if img.shape[:2] != (cam.height, cam.width):
-            raise UserError(f"{path}: size {img.shape[1]}x{img.shape[0]}, but camera file {args.camera} "
-                            f"is {cam.width}x{cam.height}")
-        res = process_frame(img, cam, cfg, height_m=args.height, mask=mask,
-                            prior=FramePrior(lat=lat) if lat is not None else None, rng=rng)
+        h, prior = _frame_inputs(p, meta, args, lat_cli)
+        if cfg.earth.enabled and h is None:
+            raise UserError(f"{path}: no height for the Earth (003 eq. (5)): give --height, a height_m or "
+                            f"position column in --meta, or --no-earth")
+        img = _read_image(p, args, cam)
+        res = process_frame(img, cam, cfg, height_m=h, mask=mask, prior=prior, rng=rng)
         if out_dir is not None:
             from vision.annotate import annotate_frame
 
             ann = out_dir / (p.stem + "_vision.png")
             if not cv2.imwrite(str(ann), annotate_frame(img, cam, res)):
                 raise UserError(f"--annotate {args.annotate}: could not write {ann}")
-        entry = {"image": str(path), "model": res.model, "vectors": [_record_dict(r) for r in res.records],
-                 "no_vector": dict(res.reasons),
-                 "time_ms": {k: round(v * 1e3, 3) for k, v in res.timings.items()}}
-        results.append(entry)
-        if not args.json:
-            print(f"{path}:")
-            for r in res.records:
-                v = ", ".join(f"{c:+.6f}" for c in r.e_c)
-                print(f"  {r.target:5s} e_c = [{v}]  sigma {r.sigma_deg:.3f} deg (1s, eq. 37)  "
-                      f"residual {r.residual:.3g} rad^2  {r.inlier_count}/{r.pixel_count} px  "
-                      f"{r.conic_type}  alpha {math.degrees(r.alpha):.3f} deg")
-            for t, why in res.reasons.items():
-                print(f"  {t:5s} no vector: {why}")
-            if res.model == "sphere":
-                print(f"  earth model: {model_note}")
-    if args.json:
-        print(json.dumps(results if len(results) > 1 else results[0], indent=1))
+        if args.json:
+            print(json.dumps(image_entry(p.name, res, cfg)), flush=True)
+        else:
+            _print_text(path, res, model_note)
     return 0

@@ -181,17 +181,22 @@ def triad_pass(plan: ImagePlan, imu) -> VectorData | None:
 def attach_priors(plan: ImagePlan, imu, init, inp) -> None:
     """Attitude prior of every job: the free-inertial INS from the initial state with the nominal
     mounting (a few degrees at most: enough for the ellipsoid model, the limb's Sun-elevation test
-    and the Sun gate), and the predicted Sun direction in the camera frame."""
-    from nav.ephemeris import sun_direction_e
+    and the Sun gate), the predicted Sun and Moon directions in the camera frame and the Moon's
+    apparent radius (`vision.moon`: the Moon's search rows, gate and limb radius)."""
+    from nav import ephemeris
     if not plan.jobs:
         return
     t = np.array([j.t_ns for j in plan.jobs], np.int64)
     R_eb = free_inertial_R_eb(imu, init, t)
     x = np.array([j.x_e for j in plan.jobs])
-    s_e = sun_direction_e(t, x)
+    s_e = ephemeris.sun_direction_e(t, x)
+    m_pos = ephemeris.moon_position_e(t)
+    m_e = ephemeris.moon_direction_e(t, x)
+    m_alpha = ephemeris.apparent_radius(m_pos, x, ephemeris.MOON_RADIUS)
     for n, j in enumerate(plan.jobs):
         R_ec = R_eb[n] @ np.asarray(inp.cameras[j.k].R_bc, float)
-        plan.jobs[n] = dataclasses.replace(j, R_ec=R_ec, sun_c=R_ec.T @ s_e[n])
+        plan.jobs[n] = dataclasses.replace(j, R_ec=R_ec, sun_c=R_ec.T @ s_e[n], moon_c=R_ec.T @ m_e[n],
+                                           moon_alpha=float(m_alpha[n]))
 
 
 def run_images(plan: ImagePlan, frames_out, progress=None, on_pool_start=None, on_result=None):

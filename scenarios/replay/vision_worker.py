@@ -42,6 +42,8 @@ class FrameJob:
     x_e: np.ndarray | None = None    #: position prior [m] (GPS); with R_ec: the ellipsoid model
     R_ec: np.ndarray | None = None   #: attitude prior camera -> e (INS); None: substitute sphere
     sun_c: np.ndarray | None = None  #: predicted Sun direction in c (ephemeris + R_ec)
+    moon_c: np.ndarray | None = None  #: predicted Moon direction in c (ephemeris + R_ec)
+    moon_alpha: float | None = None   #: the Moon's apparent radius [rad] (ephemeris distance)
 
 
 @dataclass
@@ -110,7 +112,7 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
     if img is None:
         return FrameOutput(job.k, job.t_ns, [], {"frame": "JPEG could not be decoded"}, {}, {"decode": t_dec})
     if job.R_ec is not None and job.x_e is not None:
-        prior = FramePrior(x_e=job.x_e, R_ec=job.R_ec, sun_c=job.sun_c)
+        prior = FramePrior(x_e=job.x_e, R_ec=job.R_ec, sun_c=job.sun_c, moon_c=job.moon_c, moon_alpha=job.moon_alpha)
     else:
         prior = FramePrior(lat=job.lat) if math.isfinite(job.lat) else None
     h = job.height_m if math.isfinite(job.height_m) else None

@@ -55,6 +55,10 @@ WB0 = 49          # white-balance gains R, G, B (3 values)
 TT_INV_DM = 52    # 1 / air-mass step of the transmission table
 N_PARAMS = 53
 
+#: slope [1/rad] of the Moon's surface phase function exp(-k g): with Lommel-Seeliger it gives the
+#: disc-integrated quarter Moon (g = 90 deg) ~2.6 mag below the full Moon, as observed
+_MOON_PHASE_K = 0.85
+
 # surface reflectances (R, G, B)
 _OCEAN = (0.025, 0.045, 0.075)
 _LAND = (0.075, 0.085, 0.055)
@@ -309,7 +313,10 @@ def _scene(rx, ry, rz, P, cmap, detail, ttab):
             nmx, nmy, nmz = wx - zc * mx, wy - zc * my, wz - zc * mz
             mu = nmx * sx + nmy * sy + nmz * sz
             if mu > 0.0:
-                v = P[MOON_ALB] * mu
+                # Lommel-Seeliger: radiance factor 2 p mu0 / (mu0 + mu) f(g), p the geometric
+                # albedo, mu0 = mu the incidence and zc the emission cosine, g the phase angle
+                g_ph = math.acos(min(1.0, max(-1.0, -(mx * sx + my * sy + mz * sz))))
+                v = 2.0 * P[MOON_ALB] * mu / (mu + zc) * math.exp(-_MOON_PHASE_K * g_ph)
                 lr += v * tr
                 lg += v * tg
                 lb += v * tb

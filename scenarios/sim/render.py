@@ -34,7 +34,10 @@ attitude ``R_ec`` from the truth position ``x_e``:
   normal turns from the silhouette towards the camera; it is diffusely lit, and when the Sun is in
   the right place it shows an elongated specular smear near the mask edge (003 fig. 23: "the
   sunlight is strongly reflected on the surface of the sounding rocket").
-* **Moon**: a Lambertian sphere lit by the Sun, where in view and not behind the Earth.
+* **Moon**: a sphere of geometric albedo 0.12 lit by the Sun (phases with the terminator), shaded
+  with the Lommel-Seeliger law ``2 p mu0 / (mu0 + mu) exp(-0.85 g)`` (mu0, mu the incidence and
+  emission cosines, g the phase angle): no limb darkening at full Moon, the lit limb the brightest
+  part, as the real Moon; where in view and not behind the Earth.
 * **Sensor**: automatic exposure (average metering with highlight headroom, as action cameras
   do; 004's brightness gate), optional vignetting, motion blur from the body rate during the
   exposure, photon (Poisson, Gaussian approximation) and read noise, saturation at the full-well

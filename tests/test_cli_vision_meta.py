@@ -1,0 +1,155 @@
+"""`horizon-nav vision` on a folder of rendered images with a metadata sidecar (CSV and JSON):
+one call, per-image time/height/latitude/position, --moon/--sun/--no-earth, the --json object per
+image checked against the rendering truth, and one-line errors for bad sidecar rows."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from nav import earth, ephemeris
+from nav.timescales import format_utc, parse_utc
+from scenarios.config.camera import save_camera
+from scenarios.sim import render
+from vision.camera import from_fov
+
+CAM = from_fov(320, 240, 8.0, (1.0,))
+T0 = parse_utc("2024-03-20T04:00:00Z")     # the Moon about 80 % lit
+H = 500e3
+
+
+def _pose_towards(target_e, x, rng, off_deg):
+    """R_ec with the optical axis ``off_deg`` from the direction to ``target_e`` (random roll)."""
+    d = (target_e - x) / np.linalg.norm(target_e - x)
+    t = np.cross(d, rng.normal(size=3))
+    t /= np.linalg.norm(t)
+    z = math.cos(math.radians(off_deg)) * d + math.sin(math.radians(off_deg)) * t
+    xc = np.cross(z, rng.normal(size=3))
+    xc /= np.linalg.norm(xc)
+    return np.column_stack([xc, np.cross(z, xc), z])
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """Three Moon frames, an hour apart, from 500 km above the point under the Moon, lat/lon
+    varied; the Moon at its ephemeris position (the sidecar's time gives its distance)."""
+    d = tmp_path_factory.mktemp("frames")
+    rng = np.random.default_rng(5)
+    opts = render.RenderOptions(clouds=False, payload_mask=None, exposure=6.0, white_balance=False,
+                                lens_flare=False)
+    rows = []
+    for i in range(3):
+        t = T0 + i * 3_600_000_000_000
+        moon_e = ephemeris.moon_position_e(t)
+        lat, lon, _ = earth.ecef_to_geodetic(moon_e)
+        lat, lon = float(lat) + math.radians(rng.uniform(-10, 10)), float(lon) + math.radians(rng.uniform(-10, 10))
+        x = np.asarray(earth.geodetic_to_ecef(lat, lon, H), float)
+        R = _pose_towards(moon_e, x, rng, rng.uniform(0.0, 2.0))
+        fr = render.render_frame(CAM, R, x, ephemeris.sun_position_e(t), moon_e, seed=i, options=opts)
+        name = f"moon_{i}.png"
+        cv2.imwrite(str(d / name), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
+        rows.append(dict(image=name, time=format_utc(t), lat=math.degrees(lat), lon=math.degrees(lon), x=x,
+                         moon_c=fr.e_c_moon))
+    save_camera(CAM, d / "cam.toml")
+    return d, rows
+
+
+def _run(d, *args):
+    return subprocess.run([sys.executable, "-m", "scenarios.cli", "vision", "--camera", str(d / "cam.toml"),
+                           *args], capture_output=True, text=True)
+
+
+def _check(out, rows):
+    assert [o["image"] for o in out] == [r["image"] for r in rows]
+    for o, r in zip(out, rows):
+        assert o["earth"] is None and "--no-earth" in o["reasons"]["earth"]
+        assert o["sun"] is None and o["reasons"]["sun"]           # the Sun is not in these frames
+        m = o["moon"]
+        e = np.array(m["vector_c"])
+        P = np.array(m["cov_c"])
+        assert abs(np.linalg.norm(e) - 1) < 1e-12 and P.shape == (3, 3) and np.allclose(P, P.T)
+        err = math.degrees(math.acos(min(1.0, float(e @ r["moon_c"]))))
+        # the acceptance's 0.02 deg RMS, and inside 3 sigma of the overbound
+        assert err < 0.02 and err < 3 * m["sigma_deg"], (err, m["sigma_deg"])
+
+
+def test_csv_sidecar(folder):
+    """CSV with time, latitude, longitude and height per image: one call for the folder."""
+    d, rows = folder
+    csv = d / "meta.csv"
+    csv.write_text("image,time,lat_deg,lon_deg,height_m\n" + "".join(
+        f"{r['image']},{r['time']},{r['lat']:.9f},{r['lon']:.9f},{H:.1f}\n" for r in rows))
+    p = _run(d, *[str(d / r["image"]) for r in rows], "--meta", str(csv), "--no-earth", "--moon", "--sun", "--json")
+    assert p.returncode == 0, p.stderr
+    _check([json.loads(line) for line in p.stdout.splitlines()], rows)
+
+
+def test_json_sidecar_with_positions(folder):
+    """JSON object of image name -> fields, with the ECEF position instead of lat/lon/height."""
+    d, rows = folder
+    js = d / "meta.json"
+    js.write_text(json.dumps({r["image"]: dict(time=r["time"], x_m=r["x"][0], y_m=r["x"][1], z_m=r["x"][2])
+                              for r in rows}))
+    p = _run(d, *[str(d / r["image"]) for r in rows], "--meta", str(js), "--no-earth", "--moon", "--json")
+    assert p.returncode == 0, p.stderr
+    _check([json.loads(line) for line in p.stdout.splitlines()], rows)
+
+
+@pytest.mark.parametrize("text, where", [
+    ("image,time\nmoon_0.png,yesterday\n", "line 2, column time"),
+    ("image,height_m\nmoon_0.png,high\n", "line 2, column height_m"),
+    ("image,x_m,y_m\nmoon_0.png,1,2\n", "line 2, column z_m"),
+    ("image,altitude\nmoon_0.png,1\n", "line 1, column 'altitude'"),
+    ("image,lat_deg\nmoon_0.png,91\n", "line 2, column lat_deg"),
+    ("image,lat_deg\nmoon_0.png,1\nmoon_0.png,2\n", "line 3, column image"),
+])
+def test_bad_sidecar_rows_give_one_line_errors(folder, text, where):
+    d, rows = folder
+    f = d / "bad.csv"
+    f.write_text(text)
+    p = _run(d, str(d / rows[0]["image"]), "--meta", str(f), "--no-earth", "--moon")
+    assert p.returncode != 0 and "Traceback" not in p.stderr
+    assert f"{f}, {where}" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_image_without_a_row_and_earth_without_height(folder):
+    d, rows = folder
+    f = d / "one.csv"
+    f.write_text(f"image,time\n{rows[0]['image']},{rows[0]['time']}\n")
+    p = _run(d, str(d / rows[1]["image"]), "--meta", str(f), "--no-earth", "--moon")
+    assert p.returncode != 0 and "no row for image moon_1.png" in p.stderr
+    p = _run(d, str(d / rows[0]["image"]), "--meta", str(f))
+    assert p.returncode != 0 and "no height for the Earth" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_earth_entry_carries_the_edge_height(tmp_path):
+    """The Earth's --json entry: vector_c, cov_c and the edge height its nadir was fitted with (the
+    config's atmosphere_m and atmosphere_sigma_m on the threshold edge); the height and latitude
+    from the sidecar; the Moon not processed (reason given)."""
+    from vision.camera import atek_camera
+
+    from tests.poses import pose
+
+    cam = atek_camera()
+    R, x = pose(30.0, 20.0, h=230e3)
+    fr = render.render_frame(cam, R, x, ephemeris.sun_position_e(T0), None, options=render.RenderOptions.geometric())
+    cv2.imwrite(str(tmp_path / "earth.png"), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
+    save_camera(cam, tmp_path / "cam.toml")
+    lat, _, h = earth.ecef_to_geodetic(x)
+    (tmp_path / "meta.csv").write_text(f"image,height_m,lat_deg\nearth.png,{float(h):.3f},{math.degrees(float(lat)):.9f}\n")
+    (tmp_path / "v.toml").write_text("[earth]\natmosphere_m = 0.0\natmosphere_sigma_m = 500.0\n")
+    p = _run(tmp_path, str(tmp_path / "earth.png"), "--meta", str(tmp_path / "meta.csv"), "--config",
+             str(tmp_path / "v.toml"), "--json")
+    assert p.returncode == 0, p.stderr
+    o = json.loads(p.stdout)
+    e = o["earth"]
+    assert e["edge_height_m"] == 0.0 and e["edge_height_sigma_m"] == 500.0 and e["model"] == "sphere"
+    # the substitute sphere's centre, not the geocentric nadir (003 §2.8): within 0.3 deg
+    assert math.degrees(math.acos(min(1.0, float(np.array(e["vector_c"]) @ fr.e_c_earth)))) < 0.3
+    assert np.array(e["cov_c"]).shape == (3, 3)
+    assert o["moon"] is None and "not processed" in o["reasons"]["moon"]
