@@ -1,0 +1,243 @@
+"""The Earth's edge height estimated with the nadir: the cone half-angle of 003 eq. (5) as a free
+parameter of the fit, combined with a prior where the visible arc does not constrain it.
+
+Why
+---
+The apparent horizon is where the limb's brightness crosses the detector's edge criterion, at an
+effective tangent height ``h_e`` (``d`` of 003 eq. (5)) that depends on the camera, its exposure
+and the atmosphere (003 §4, 004 §3.4.3): near 45 km for a threshold on our renderer's limb, near
+0-10 km on real orbital photographs where the Earth's disc is far brighter than the thin limb.
+With the unit-norm cone fit a wrong ``h_e`` is a wrong alpha, and on a partial arc a wrong alpha
+tilts the nadir towards the arc (about 0.02 deg per km from 500 km with a 25 deg camera). So
+``h_e`` is fitted with the direction, as 003 §5 fits the Sun's angular radius, and its
+uncertainty is marginalised into the direction covariance.
+
+Estimator
+---------
+In the fit frame of the limb model (`vision.oblate`) the residual of ray ``h_j`` is
+``r_j = h_j^T e - cos(alpha(d))``, ``sin alpha(d) = sin alpha_0 + (d - d_0) rate cos alpha_0``
+(`LimbModel.cone_angle_change`). Linearised at ``(e_k, d_k)`` with ``e = e_k + T x`` (T the
+tangent basis at e_k) and ``u = (d - d_k) / sigma_p``::
+
+    F z = -r,   F_j = [h_j^T T, s sigma_p],   s = d cos(alpha)/d d = sin(alpha) dalpha/dd
+
+The data-only estimate is the least-squares ``z_f = (F^T F)^-1 F^T (-r)`` (the same unweighted fit
+the direction has with a known alpha), and its covariance under the correlated pixel noise of 003
+eqs. (34)-(36) is the sandwich ``C_f = R (F^T F)^-1 F^T Sigma F (F^T F)^-1`` with
+``Sigma = D_u T D_u + D_v T D_v``, ``D = diag(e^T J_j)`` and ``T_jk = rho^|j-k|``, computed in
+O(m) with the AR(1) recursions of `vision.covariance`. The prior ``d ~ N(d_p, sigma_p^2)`` is a
+pseudo-measurement of ``u``; the estimate is the Gaussian conditioning of ``(z_f, C_f)`` on it
+(the maximum a posteriori estimate of the linear model)::
+
+    k = C_f[:, 2] / (C_f[2, 2] + 1),   z = z_f + k ((d_p - d_k)/sigma_p - z_f[2]),
+    C = C_f - k C_f[2, :]
+
+iterated (Gauss-Newton, the prior held fixed) until the step is below 1e-12. ``C`` is the joint
+covariance of (direction, height): its direction block is the marginal direction covariance
+(it contains the height's uncertainty), its last row the correlation of the two. A long arc
+constrains ``d`` (``C[2, 2]`` well below 1: the prior has little weight); a short arc leaves
+``C[2, 2] ~ 1`` and the prior's sigma goes into the direction covariance through the tilt, as the
+fixed-height fit's ``sigma_d^2 g g^T`` term does (`vision.fitting.alpha_sensitivity`).
+
+The prior is not a measurement: its mean is the height the edge detector's model assumes
+(``TargetConfig.atmosphere_m`` for the threshold edge, ``LimbOptions.height_m`` for the limb
+edge), its sigma (``EdgeHeightOptions.prior_sigma_m``) is wide enough to hold the edges of
+cameras the defaults were not tuned on.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from nav._kernels import tangent_basis as nb_tangent_basis
+from vision.covariance import _ar1_apply_2d
+from vision.oblate import LimbModel
+
+__all__ = ["EdgeHeightFit", "fit_edge_height"]
+
+
+@dataclass(frozen=True)
+class EdgeHeightFit:
+    """Direction and edge height fitted together (module docstring).
+
+    Attributes
+    ----------
+    e_fit : (3,) unit direction in the fit frame of the limb model.
+    alpha : cone half-angle at the estimated height, fit frame [rad].
+    height_m : estimated edge height [m]; sigma_m : its posterior 1-sigma [m].
+    data_sigma_m : 1-sigma [m] of the arc's own (prior-free) estimate; inf when the arc alone
+        cannot separate the height from the tilt.
+    P_c : (3, 3) marginal covariance of the camera-frame direction [rad^2].
+    cov_c : (3,) covariance of the camera-frame direction with the height [rad m].
+    from_arc : the arc constrains the height: posterior variance below ``constrained_ratio`` of
+        the prior's.
+    residual : mean squared angular residual of the rays from the fitted cone [rad^2].
+    """
+
+    e_fit: np.ndarray
+    alpha: float
+    height_m: float
+    sigma_m: float
+    data_sigma_m: float
+    P_c: np.ndarray
+    cov_c: np.ndarray
+    from_arc: bool
+    residual: float
+
+
+@numba.njit(cache=True)
+def _normal_3(H, J, e_fit, e_c, c, s, rho):  # pragma: no cover - numba
+    """F^T F, F^T (-r) and F^T Sigma_0 F (unit pixel variance) for F_j = [h_j^T T, s],
+    r_j = h_j^T e - c, T the tangent basis at e_fit; the pixel-noise weights g_j = e_c^T J_j
+    (camera frame: the limb model's map differs from a rotation by the flattening only)."""
+    m = H.shape[0]
+    T = nb_tangent_basis(e_fit)
+    F = np.empty((m, 3))
+    G = np.empty((m, 6))
+    M = np.zeros((3, 3))
+    b = np.zeros(3)
+    for j in range(m):
+        F[j, 0] = H[j, 0] * T[0, 0] + H[j, 1] * T[1, 0] + H[j, 2] * T[2, 0]
+        F[j, 1] = H[j, 0] * T[0, 1] + H[j, 1] * T[1, 1] + H[j, 2] * T[2, 1]
+        F[j, 2] = s
+        r = H[j, 0] * e_fit[0] + H[j, 1] * e_fit[1] + H[j, 2] * e_fit[2] - c
+        gu = e_c[0] * J[j, 0, 0] + e_c[1] * J[j, 1, 0] + e_c[2] * J[j, 2, 0]
+        gv = e_c[0] * J[j, 0, 1] + e_c[1] * J[j, 1, 1] + e_c[2] * J[j, 2, 1]
+        for a in range(3):
+            b[a] -= F[j, a] * r
+            G[j, a] = gu * F[j, a]
+            G[j, 3 + a] = gv * F[j, a]
+            for q in range(3):
+                M[a, q] += F[j, a] * F[j, q]
+    TG = _ar1_apply_2d(G, rho) if rho > 0.0 else G.copy()
+    S = np.zeros((3, 3))
+    for j in range(m):
+        for a in range(3):
+            for q in range(3):
+                S[a, q] += G[j, a] * TG[j, q] + G[j, 3 + a] * TG[j, 3 + q]
+    return M, b, S, T
+
+
+def _cone(model: LimbModel, d0: float, d: float) -> tuple[float, float]:
+    """(alpha, d cos(alpha)/d d) [rad, 1/m] of the limb model built at height d0, at height d."""
+    alpha = model.alpha + float(model.cone_angle_change(d - d0))
+    rate = model.alpha_rate * math.cos(model.alpha) / math.cos(alpha)
+    return alpha, math.sin(alpha) * rate
+
+
+def _conditioned(M, b, S, R, z_prior):
+    """(z, C, data variance of u) of the module docstring's conditioning; None when F^T F is
+    singular (rays on one cone in every direction: too few distinct rays)."""
+    try:
+        Mi = np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return None
+    z_f = Mi @ b
+    C_f = R * (Mi @ S @ Mi)
+    C_f = 0.5 * (C_f + C_f.T)
+    if not (np.all(np.isfinite(C_f)) and C_f[2, 2] >= 0.0):
+        return None
+    k = C_f[:, 2] / (C_f[2, 2] + 1.0)
+    z = z_f + k * (z_prior - z_f[2])
+    C = C_f - np.outer(k, C_f[2, :])
+    return z, 0.5 * (C + C.T), float(C_f[2, 2])
+
+
+def _camera_jacobian(model: LimbModel, e_fit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(e_c, d e_c / d e_fit) of `LimbModel.to_camera` (3x3, for tangent-plane perturbations)."""
+    if model.kind == "sphere":
+        return e_fit, np.eye(3) - np.outer(e_fit, e_fit)
+    v = model.M_inv @ e_fit
+    nv = float(np.linalg.norm(v))
+    e_c = v / nv
+    return e_c, (np.eye(3) - np.outer(e_c, e_c)) @ model.M_inv / nv
+
+
+def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e_fit: np.ndarray,
+                    prior_m: float, prior_sigma_m: float, R_px2: float, L_eff: float,
+                    constrained_ratio: float = 0.5, iters: int = 6) -> EdgeHeightFit | None:
+    """Direction and edge height of a limb arc, the height's prior as a pseudo-measurement.
+
+    Parameters
+    ----------
+    model : the limb model (`vision.oblate`) built at edge height ``d0`` [m]; ``H`` its fit-frame
+        unit rays (m, 3) of the inliers, ordered along the edge.
+    J : (m, 3, 2) d ray / d(u, v) of the rays in the camera frame [1/px].
+    e_fit : start direction in the fit frame (the fit at ``d0``).
+    prior_m, prior_sigma_m : the prior N(prior_m, prior_sigma_m^2) of the height [m]; sigma > 0.
+    R_px2, L_eff : pixel-noise variance [px^2] and correlation length in steps of the subsampled
+        edge (003 eqs. (34)-(36)).
+    constrained_ratio : ``from_arc`` when the posterior variance is below this fraction of the prior's.
+
+    Returns
+    -------
+    `EdgeHeightFit`, or None when the linearised problem is singular or the height leaves the
+    range where the cone exists (the caller keeps the fixed-height fit).
+    """
+    if not (prior_sigma_m > 0.0 and math.isfinite(prior_sigma_m)):
+        raise ValueError(f"prior_sigma_m = {prior_sigma_m}; expected a finite sigma > 0 [m]")
+    Hc = np.ascontiguousarray(H, dtype=float)
+    Jc = np.ascontiguousarray(J, dtype=float)
+    rho = 1.0 - 1.0 / max(L_eff, 1.0)
+    e = np.asarray(e_fit, dtype=float) / np.linalg.norm(e_fit)
+    d = float(d0)
+    for _ in range(iters):
+        alpha, s = _cone(model, d0, d)
+        if not (math.isfinite(alpha) and 0.0 < alpha < math.pi / 2):
+            return None
+        e_c = model.to_camera(e)
+        M, b, S, T = _normal_3(Hc, Jc, e, e_c, math.cos(alpha), s * prior_sigma_m, rho)
+        out = _conditioned(M, b, S, R_px2, (prior_m - d) / prior_sigma_m)
+        if out is None:
+            return None
+        z, C, var_data = out
+        e = e + T @ z[:2]
+        e /= np.linalg.norm(e)
+        d += prior_sigma_m * float(z[2])
+        if math.hypot(z[0], z[1]) < 1e-12 and abs(z[2]) < 1e-9:
+            break
+    alpha, _ = _cone(model, d0, d)
+    if not (math.isfinite(alpha) and 0.0 < alpha < math.pi / 2):
+        return None
+    e_c, Jm = _camera_jacobian(model, e)
+    T = nb_tangent_basis(e)
+    A = Jm @ T
+    P_c = A @ C[:2, :2] @ A.T
+    cov_c = A @ C[:2, 2] * prior_sigma_m
+    var_h = float(C[2, 2]) * prior_sigma_m**2
+    r = np.arccos(np.clip(Hc @ e, -1.0, 1.0)) - alpha
+    return EdgeHeightFit(e_fit=e, alpha=alpha, height_m=d, sigma_m=math.sqrt(max(var_h, 0.0)),
+                         data_sigma_m=math.sqrt(var_data) * prior_sigma_m if var_data < 1e12 else math.inf,
+                         P_c=0.5 * (P_c + P_c.T), cov_c=cov_c, from_arc=var_h < constrained_ratio * prior_sigma_m**2,
+                         residual=float(np.mean(r * r)))
+
+
+def fit_edge_reselect(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, inliers: np.ndarray,
+                      e_fit: np.ndarray, prior_m: float, prior_sigma_m: float, R_px2: float, L_eff: float,
+                      threshold, min_inliers: int, constrained_ratio: float = 0.5,
+                      n_iter: int = 4) -> tuple[EdgeHeightFit | None, np.ndarray]:
+    """`fit_edge_height` with the inliers re-selected on its cone: the rays of ``H`` (all of the
+    edge, fit frame) within ``threshold`` [rad, scalar or per ray] of the fitted cone, refitted,
+    until the selection repeats or ``n_iter`` times. A fit with a fixed, wrong height keeps only
+    the part of a long arc where its tilted cone crosses the true one; the joint fit's cone
+    takes the whole arc back. Returns (fit, inliers); (None, inliers) when the first fit fails;
+    a selection of fewer than ``min_inliers`` rays ends the loop with the last good fit."""
+    from vision.nadir import within_cone
+
+    inl = np.asarray(inliers, dtype=bool)
+    ef = fit_edge_height(model, d0, H[inl], J[inl], e_fit, prior_m, prior_sigma_m, R_px2, L_eff, constrained_ratio)
+    for _ in range(n_iter):
+        if ef is None:
+            break
+        new = within_cone(H, ef.e_fit, ef.alpha, threshold)
+        if new.sum() < min_inliers or (new == inl).all():
+            break
+        nf = fit_edge_height(model, d0, H[new], J[new], ef.e_fit, prior_m, prior_sigma_m, R_px2, L_eff,
+                             constrained_ratio)
+        if nf is None:
+            break
+        ef, inl = nf, new
+    return ef, inl
