@@ -350,16 +350,25 @@ class EdgeHeightOptions(_Checks):
         atmosphere (the limb term of `LimbOptions` is the model's spread where the model holds).
     constrained_ratio : the arc is said to constrain the height (``TargetResult.edge_from_arc``)
         when the posterior variance is below this fraction (0..1] of the prior's.
+    along_sigma_m, along_L_px : the edge's height variation along the limb (the Sun's elevation
+        and the exposure change along it: the threshold edge's height varies by 1-4 km over an
+        arc on rendered frames) as a Gauss-Markov sequence of this sigma [m] and correlation
+        length [px] along the edge; it bends the arc like a change of height, so it bounds what
+        the arc can say about the height (`vision.edge_height`).
     """
 
     estimate: bool = True
     limb_prior_sigma_m: float = 20e3
     constrained_ratio: float = 0.5
+    along_sigma_m: float = 3000.0
+    along_L_px: float = 600.0
 
     def __post_init__(self):
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
-        self._finite(("limb_prior_sigma_m",))
+        self._finite(("limb_prior_sigma_m", "along_sigma_m"))
+        if not self.along_L_px >= 1.0:
+            self._bad("along_L_px", ">= 1 px")
         if not 0.0 < self.constrained_ratio <= 1.0:
             self._bad("constrained_ratio", "a fraction in (0, 1]")
 

@@ -89,10 +89,11 @@ class EdgeHeightFit:
 
 
 @numba.njit(cache=True)
-def _normal_3(H, J, e_fit, e_c, c, s, rho):  # pragma: no cover - numba
-    """F^T F, F^T (-r) and F^T Sigma_0 F (unit pixel variance) for F_j = [h_j^T T, s],
-    r_j = h_j^T e - c, T the tangent basis at e_fit; the pixel-noise weights g_j = e_c^T J_j
-    (camera frame: the limb model's map differs from a rotation by the flattening only)."""
+def _normal_3(H, J, e_fit, e_c, c, s, rho, rho_v):  # pragma: no cover - numba
+    """F^T F, F^T (-r), F^T Sigma_0 F (unit pixel variance) and F^T T_v F (the along-edge
+    height variation's correlation, rho_v) for F_j = [h_j^T T, s], r_j = h_j^T e - c, T the
+    tangent basis at e_fit; the pixel-noise weights g_j = e_c^T J_j (camera frame: the limb
+    model's map differs from a rotation by the flattening only)."""
     m = H.shape[0]
     T = nb_tangent_basis(e_fit)
     F = np.empty((m, 3))
@@ -113,12 +114,15 @@ def _normal_3(H, J, e_fit, e_c, c, s, rho):  # pragma: no cover - numba
             for q in range(3):
                 M[a, q] += F[j, a] * F[j, q]
     TG = _ar1_apply_2d(G, rho) if rho > 0.0 else G.copy()
+    TF = _ar1_apply_2d(F, rho_v) if rho_v > 0.0 else F.copy()
     S = np.zeros((3, 3))
+    V = np.zeros((3, 3))
     for j in range(m):
         for a in range(3):
             for q in range(3):
                 S[a, q] += G[j, a] * TG[j, q] + G[j, 3 + a] * TG[j, 3 + q]
-    return M, b, S, T
+                V[a, q] += F[j, a] * TF[j, q]
+    return M, b, S, V, T
 
 
 def _cone(model: LimbModel, d0: float, d: float) -> tuple[float, float]:
@@ -128,7 +132,7 @@ def _cone(model: LimbModel, d0: float, d: float) -> tuple[float, float]:
     return alpha, math.sin(alpha) * rate
 
 
-def _conditioned(M, b, S, R, z_prior):
+def _conditioned(M, b, S, R, z_prior, V=None, var_v=0.0):
     """(z, C, data variance of u) of the module docstring's conditioning; None when F^T F is
     singular (rays on one cone in every direction: too few distinct rays)."""
     try:
@@ -136,7 +140,7 @@ def _conditioned(M, b, S, R, z_prior):
     except np.linalg.LinAlgError:
         return None
     z_f = Mi @ b
-    C_f = R * (Mi @ S @ Mi)
+    C_f = Mi @ (R * S + (var_v * V if V is not None else 0.0)) @ Mi
     C_f = 0.5 * (C_f + C_f.T)
     if not (np.all(np.isfinite(C_f)) and C_f[2, 2] >= 0.0):
         return None
@@ -158,7 +162,8 @@ def _camera_jacobian(model: LimbModel, e_fit: np.ndarray) -> tuple[np.ndarray, n
 
 def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e_fit: np.ndarray,
                     prior_m: float, prior_sigma_m: float, R_px2: float, L_eff: float,
-                    constrained_ratio: float = 0.5, iters: int = 6) -> EdgeHeightFit | None:
+                    constrained_ratio: float = 0.5, iters: int = 6, along_sigma_m: float = 0.0,
+                    along_L: float = 1.0) -> EdgeHeightFit | None:
     """Direction and edge height of a limb arc, the height's prior as a pseudo-measurement.
 
     Parameters
@@ -171,6 +176,10 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
     R_px2, L_eff : pixel-noise variance [px^2] and correlation length in steps of the subsampled
         edge (003 eqs. (34)-(36)).
     constrained_ratio : ``from_arc`` when the posterior variance is below this fraction of the prior's.
+    along_sigma_m, along_L : the edge's height variation along the limb [m] (illumination,
+        exposure) as a Gauss-Markov sequence of this sigma and correlation length [steps of the
+        edge]: a residual ``s dh_j`` per ray whose correlated part mimics a change of curvature,
+        so it limits what the arc can say about the height (0: none).
 
     Returns
     -------
@@ -182,6 +191,7 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
     Hc = np.ascontiguousarray(H, dtype=float)
     Jc = np.ascontiguousarray(J, dtype=float)
     rho = 1.0 - 1.0 / max(L_eff, 1.0)
+    rho_v = 1.0 - 1.0 / max(along_L, 1.0)
     e = np.asarray(e_fit, dtype=float) / np.linalg.norm(e_fit)
     d = float(d0)
     for _ in range(iters):
@@ -189,8 +199,8 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
         if not (math.isfinite(alpha) and 0.0 < alpha < math.pi / 2):
             return None
         e_c = model.to_camera(e)
-        M, b, S, T = _normal_3(Hc, Jc, e, e_c, math.cos(alpha), s * prior_sigma_m, rho)
-        out = _conditioned(M, b, S, R_px2, (prior_m - d) / prior_sigma_m)
+        M, b, S, V, T = _normal_3(Hc, Jc, e, e_c, math.cos(alpha), s * prior_sigma_m, rho, rho_v)
+        out = _conditioned(M, b, S, R_px2, (prior_m - d) / prior_sigma_m, V, (s * along_sigma_m) ** 2)
         if out is None:
             return None
         z, C, var_data = out
@@ -218,7 +228,8 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
 def fit_edge_reselect(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, inliers: np.ndarray,
                       e_fit: np.ndarray, prior_m: float, prior_sigma_m: float, R_px2: float, L_eff: float,
                       threshold, min_inliers: int, constrained_ratio: float = 0.5,
-                      n_iter: int = 4) -> tuple[EdgeHeightFit | None, np.ndarray]:
+                      n_iter: int = 4, along_sigma_m: float = 0.0,
+                      along_L: float = 1.0) -> tuple[EdgeHeightFit | None, np.ndarray]:
     """`fit_edge_height` with the inliers re-selected on its cone: the rays of ``H`` (all of the
     edge, fit frame) within ``threshold`` [rad, scalar or per ray] of the fitted cone, refitted,
     until the selection repeats or ``n_iter`` times. A fit with a fixed, wrong height keeps only
@@ -228,7 +239,8 @@ def fit_edge_reselect(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray,
     from vision.nadir import within_cone
 
     inl = np.asarray(inliers, dtype=bool)
-    ef = fit_edge_height(model, d0, H[inl], J[inl], e_fit, prior_m, prior_sigma_m, R_px2, L_eff, constrained_ratio)
+    kw = dict(along_sigma_m=along_sigma_m, along_L=along_L)
+    ef = fit_edge_height(model, d0, H[inl], J[inl], e_fit, prior_m, prior_sigma_m, R_px2, L_eff, constrained_ratio, **kw)
     for _ in range(n_iter):
         if ef is None:
             break
@@ -236,7 +248,7 @@ def fit_edge_reselect(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray,
         if new.sum() < min_inliers or (new == inl).all():
             break
         nf = fit_edge_height(model, d0, H[new], J[new], ef.e_fit, prior_m, prior_sigma_m, R_px2, L_eff,
-                             constrained_ratio)
+                             constrained_ratio, **kw)
         if nf is None:
             break
         ef, inl = nf, new

@@ -153,7 +153,8 @@ def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min
     the fit's direction and alpha those of the joint fit."""
     ef, inl2 = fit_edge_reselect(model, tc.atmosphere_m, H, J, inl, fit.e_c, tc.atmosphere_m,
                                  tc.atmosphere_sigma_m, tc.fit.R_px2, max(1.0, tc.fit.L_px / step), thr,
-                                 min_inliers, tc.edge.constrained_ratio)
+                                 min_inliers, tc.edge.constrained_ratio, along_sigma_m=tc.edge.along_sigma_m,
+                                 along_L=max(1.0, tc.edge.along_L_px / step))
     if ef is None:
         return fit, inl
     return dataclasses.replace(fit, e_c=ef.e_fit, n=ef.e_fit, alpha=ef.alpha, rhs=math.cos(ef.alpha),
@@ -173,7 +174,9 @@ def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: fl
     angle of the inlier rays about e_c (the visible horizon's cone, for its conic type)."""
     if tc.edge.estimate and sig_p > 0:
         ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, d0, sig_p, tc.fit.R_px2, L_eff, thr,
-                                     max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio)
+                                     max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio,
+                                     along_sigma_m=tc.edge.along_sigma_m,
+                                     along_L=L_eff * tc.edge.along_L_px / tc.fit.L_px)
         if ef is not None:
             e_c = model.to_camera(ef.e_fit)
             edge = (ef.height_m, ef.sigma_m, ef.cov_c, ef.from_arc)
