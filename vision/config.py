@@ -354,7 +354,13 @@ class EdgeHeightOptions(_Checks):
         and the exposure change along it: the threshold edge's height varies by 1-4 km over an
         arc on rendered frames) as a Gauss-Markov sequence of this sigma [m] and correlation
         length [px] along the edge; it bends the arc like a change of height, so it bounds what
-        the arc can say about the height (`vision.edge_height`).
+        the arc can say about the height (`vision.edge_height`); on both edges (the limb edge's
+        Sun-path model holds only where its profile is the assumed one).
+    limb_gate : the limb edge is kept only when the arc's own (prior-free) height estimate is
+        within this many sigmas (the estimate's and the limb model's combined) of the limb
+        model's height ``LimbOptions.height_m``: an arc that disagrees says the limb profile is not
+        the one the model assumes (another camera, another atmosphere), and the threshold edge
+        with its wide prior is used instead. 0: always kept.
     """
 
     estimate: bool = True
@@ -362,11 +368,12 @@ class EdgeHeightOptions(_Checks):
     constrained_ratio: float = 0.5
     along_sigma_m: float = 3000.0
     along_L_px: float = 600.0
+    limb_gate: float = 3.0
 
     def __post_init__(self):
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
-        self._finite(("limb_prior_sigma_m", "along_sigma_m"))
+        self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate"))
         if not self.along_L_px >= 1.0:
             self._bad("along_L_px", ">= 1 px")
         if not 0.0 < self.constrained_ratio <= 1.0:

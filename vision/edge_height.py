@@ -68,8 +68,8 @@ class EdgeHeightFit:
     e_fit : (3,) unit direction in the fit frame of the limb model.
     alpha : cone half-angle at the estimated height, fit frame [rad].
     height_m : estimated edge height [m]; sigma_m : its posterior 1-sigma [m].
-    data_sigma_m : 1-sigma [m] of the arc's own (prior-free) estimate; inf when the arc alone
-        cannot separate the height from the tilt.
+    data_height_m, data_sigma_m : the arc's own (prior-free) estimate of the height [m] and its
+        1-sigma [m]; sigma inf when the arc alone cannot separate the height from the tilt.
     P_c : (3, 3) marginal covariance of the camera-frame direction [rad^2].
     cov_c : (3,) covariance of the camera-frame direction with the height [rad m].
     from_arc : the arc constrains the height: posterior variance below ``constrained_ratio`` of
@@ -81,6 +81,7 @@ class EdgeHeightFit:
     alpha: float
     height_m: float
     sigma_m: float
+    data_height_m: float
     data_sigma_m: float
     P_c: np.ndarray
     cov_c: np.ndarray
@@ -133,8 +134,8 @@ def _cone(model: LimbModel, d0: float, d: float) -> tuple[float, float]:
 
 
 def _conditioned(M, b, S, R, z_prior, V=None, var_v=0.0):
-    """(z, C, data variance of u) of the module docstring's conditioning; None when F^T F is
-    singular (rays on one cone in every direction: too few distinct rays)."""
+    """(z, C, data variance of u, data estimate of u) of the module docstring's conditioning;
+    None when F^T F is singular (rays on one cone in every direction: too few distinct rays)."""
     try:
         Mi = np.linalg.inv(M)
     except np.linalg.LinAlgError:
@@ -147,7 +148,7 @@ def _conditioned(M, b, S, R, z_prior, V=None, var_v=0.0):
     k = C_f[:, 2] / (C_f[2, 2] + 1.0)
     z = z_f + k * (z_prior - z_f[2])
     C = C_f - np.outer(k, C_f[2, :])
-    return z, 0.5 * (C + C.T), float(C_f[2, 2])
+    return z, 0.5 * (C + C.T), float(C_f[2, 2]), float(z_f[2])
 
 
 def _camera_jacobian(model: LimbModel, e_fit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,7 +204,8 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
         out = _conditioned(M, b, S, R_px2, (prior_m - d) / prior_sigma_m, V, (s * along_sigma_m) ** 2)
         if out is None:
             return None
-        z, C, var_data = out
+        z, C, var_data, u_data = out
+        h_data = d + prior_sigma_m * u_data
         e = e + T @ z[:2]
         e /= np.linalg.norm(e)
         d += prior_sigma_m * float(z[2])
@@ -219,7 +221,7 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
     cov_c = A @ C[:2, 2] * prior_sigma_m
     var_h = float(C[2, 2]) * prior_sigma_m**2
     r = np.arccos(np.clip(Hc @ e, -1.0, 1.0)) - alpha
-    return EdgeHeightFit(e_fit=e, alpha=alpha, height_m=d, sigma_m=math.sqrt(max(var_h, 0.0)),
+    return EdgeHeightFit(e_fit=e, alpha=alpha, height_m=d, sigma_m=math.sqrt(max(var_h, 0.0)), data_height_m=h_data,
                          data_sigma_m=math.sqrt(var_data) * prior_sigma_m if var_data < 1e12 else math.inf,
                          P_c=0.5 * (P_c + P_c.T), cov_c=cov_c, from_arc=var_h < constrained_ratio * prior_sigma_m**2,
                          residual=float(np.mean(r * r)))

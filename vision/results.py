@@ -90,6 +90,8 @@ class TargetResult:
     # the mean height fitted on the profile flanks
     edge_cov_c: np.ndarray | None = None  # Earth: (3,) covariance of e_c with the edge height [rad m]
     edge_from_arc: bool = False  # Earth: the arc constrains the edge height (vision.edge_height)
+    limb_rejected_m: float = math.nan  # Earth: the limb edge's own height [m] when it disagreed with
+    # the limb model (EdgeHeightOptions.limb_gate) and the threshold edge was used instead
     cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the
     # visible horizon's cone (its conic type; drawn by the replay's overlay)
 
