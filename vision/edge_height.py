@@ -32,7 +32,8 @@ pseudo-measurement of ``u``; the estimate is the Gaussian conditioning of ``(z_f
     k = C_f[:, 2] / (C_f[2, 2] + 1),   z = z_f + k ((d_p - d_k)/sigma_p - z_f[2]),
     C = C_f - k C_f[2, :]
 
-iterated (Gauss-Newton, the prior held fixed) until the step is below 1e-12. ``C`` is the joint
+iterated (Gauss-Newton, the prior held fixed) until the step is below 1e-9 rad and 1e-6 sigma_p
+(3-4 iterations from a start 35 km off). ``C`` is the joint
 covariance of (direction, height): its direction block is the marginal direction covariance
 (it contains the height's uncertainty), its last row the correlation of the two. A long arc
 constrains ``d`` (``C[2, 2]`` well below 1: the prior has little weight); a short arc leaves
@@ -54,6 +55,7 @@ import numpy as np
 
 from nav._kernels import tangent_basis as nb_tangent_basis
 from vision.covariance import _ar1_apply_2d
+from vision.nadir import _mean_sq_residual
 from vision.oblate import LimbModel
 
 __all__ = ["EdgeHeightFit", "fit_edge_height"]
@@ -126,29 +128,67 @@ def _normal_3(H, J, e_fit, e_c, c, s, rho, rho_v):  # pragma: no cover - numba
     return M, b, S, V, T
 
 
-def _cone(model: LimbModel, d0: float, d: float) -> tuple[float, float]:
-    """(alpha, d cos(alpha)/d d) [rad, 1/m] of the limb model built at height d0, at height d."""
-    alpha = model.alpha + float(model.cone_angle_change(d - d0))
-    rate = model.alpha_rate * math.cos(model.alpha) / math.cos(alpha)
-    return alpha, math.sin(alpha) * rate
+@numba.njit(cache=True)
+def _inv3(A):  # pragma: no cover - numba
+    """Inverse of a 3x3 matrix by cofactors; (inverse, ok) with ok False when singular."""
+    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
+    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
+    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
+    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
+    out = np.empty((3, 3))
+    scale = max(abs(A[0, 0]), abs(A[1, 1]), abs(A[2, 2]), 1e-300)
+    if not (math.isfinite(det) and abs(det) > 1e-14 * scale**3):
+        return out, False
+    out[0, 0], out[1, 0], out[2, 0] = c00 / det, c01 / det, c02 / det
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) / det
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) / det
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) / det
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) / det
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
+    return out, True
 
 
-def _conditioned(M, b, S, R, z_prior, V=None, var_v=0.0):
-    """(z, C, data variance of u, data estimate of u) of the module docstring's conditioning;
-    None when F^T F is singular (rays on one cone in every direction: too few distinct rays)."""
-    try:
-        Mi = np.linalg.inv(M)
-    except np.linalg.LinAlgError:
-        return None
-    z_f = Mi @ b
-    C_f = Mi @ (R * S + (var_v * V if V is not None else 0.0)) @ Mi
-    C_f = 0.5 * (C_f + C_f.T)
-    if not (np.all(np.isfinite(C_f)) and C_f[2, 2] >= 0.0):
-        return None
-    k = C_f[:, 2] / (C_f[2, 2] + 1.0)
-    z = z_f + k * (z_prior - z_f[2])
-    C = C_f - np.outer(k, C_f[2, :])
-    return z, 0.5 * (C + C.T), float(C_f[2, 2]), float(z_f[2])
+@numba.njit(cache=True)
+def _gauss_newton(H, J, e0, M_inv, geo, prior, R, rho, rho_v, var_v, iters):  # pragma: no cover - numba
+    """The iterations of `fit_edge_height` in one call (module docstring). ``geo`` = (sin alpha_0,
+    cos alpha_0, dalpha/dd at d_0, d_0), ``prior`` = (mean, sigma). Returns (e, d, C, var_data,
+    h_data, ok): the direction (fit frame), the height, the joint covariance of (tilt, height /
+    sigma), the arc's own variance of height / sigma and its own height estimate."""
+    sa0, ca0, rate0, d0 = geo[0], geo[1], geo[2], geo[3]
+    pm, ps = prior[0], prior[1]
+    e = e0 / math.sqrt(e0[0] ** 2 + e0[1] ** 2 + e0[2] ** 2)
+    d = d0
+    C = np.zeros((3, 3))
+    var_data, h_data = 0.0, d0
+    for _ in range(iters):
+        sa = sa0 + (d - d0) * rate0 * ca0      # sin alpha(d), 003 eq. (5) linear in d
+        if not 0.0 < sa < 1.0:
+            return e, d, C, var_data, h_data, False
+        ca = math.sqrt(1.0 - sa * sa)
+        s = sa * rate0 * ca0 / ca              # d(-cos alpha)/dd: the residual's height column
+        v = M_inv @ e
+        e_c = v / math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+        M, b, S, V, T = _normal_3(H, J, e, e_c, ca, s * ps, rho, rho_v)
+        Mi, ok = _inv3(M)
+        if not ok:
+            return e, d, C, var_data, h_data, False
+        z_f = Mi @ b
+        C_f = Mi @ (R * S + (s * s * var_v) * V) @ Mi
+        C_f = 0.5 * (C_f + C_f.T)
+        if not (np.all(np.isfinite(C_f)) and C_f[2, 2] >= 0.0):
+            return e, d, C, var_data, h_data, False
+        var_data, h_data = C_f[2, 2], d + ps * z_f[2]
+        k = C_f[:, 2] / (C_f[2, 2] + 1.0)
+        z = z_f + k * ((pm - d) / ps - z_f[2])
+        C = C_f - np.outer(k, C_f[2, :])
+        C = 0.5 * (C + C.T)
+        e = e + T[:, 0] * z[0] + T[:, 1] * z[1]
+        e = e / math.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
+        d = d + ps * z[2]
+        if math.sqrt(z[0] ** 2 + z[1] ** 2) < 1e-9 and abs(z[2]) < 1e-6:   # 0.2 mdeg, 2 cm per 20 km
+            break
+    return e, d, C, var_data, h_data, True
 
 
 def _camera_jacobian(model: LimbModel, e_fit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -189,42 +229,26 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
     """
     if not (prior_sigma_m > 0.0 and math.isfinite(prior_sigma_m)):
         raise ValueError(f"prior_sigma_m = {prior_sigma_m}; expected a finite sigma > 0 [m]")
+    geo = np.array([math.sin(model.alpha), math.cos(model.alpha), model.alpha_rate, float(d0)])
     Hc = np.ascontiguousarray(H, dtype=float)
-    Jc = np.ascontiguousarray(J, dtype=float)
-    rho = 1.0 - 1.0 / max(L_eff, 1.0)
-    rho_v = 1.0 - 1.0 / max(along_L, 1.0)
-    e = np.asarray(e_fit, dtype=float) / np.linalg.norm(e_fit)
-    d = float(d0)
-    for _ in range(iters):
-        alpha, s = _cone(model, d0, d)
-        if not (math.isfinite(alpha) and 0.0 < alpha < math.pi / 2):
-            return None
-        e_c = model.to_camera(e)
-        M, b, S, V, T = _normal_3(Hc, Jc, e, e_c, math.cos(alpha), s * prior_sigma_m, rho, rho_v)
-        out = _conditioned(M, b, S, R_px2, (prior_m - d) / prior_sigma_m, V, (s * along_sigma_m) ** 2)
-        if out is None:
-            return None
-        z, C, var_data, u_data = out
-        h_data = d + prior_sigma_m * u_data
-        e = e + T @ z[:2]
-        e /= np.linalg.norm(e)
-        d += prior_sigma_m * float(z[2])
-        if math.hypot(z[0], z[1]) < 1e-12 and abs(z[2]) < 1e-9:
-            break
-    alpha, _ = _cone(model, d0, d)
-    if not (math.isfinite(alpha) and 0.0 < alpha < math.pi / 2):
+    e, d, C, var_data, h_data, ok = _gauss_newton(
+        Hc, np.ascontiguousarray(J, dtype=float), np.asarray(e_fit, dtype=float),
+        np.ascontiguousarray(model.M_inv, dtype=float), geo, np.array([float(prior_m), float(prior_sigma_m)]),
+        float(R_px2), 1.0 - 1.0 / max(L_eff, 1.0), 1.0 - 1.0 / max(along_L, 1.0), float(along_sigma_m) ** 2, iters)
+    sa = geo[0] + (d - d0) * geo[2] * geo[1]
+    if not (ok and 0.0 < sa < 1.0):
         return None
-    e_c, Jm = _camera_jacobian(model, e)
-    T = nb_tangent_basis(e)
-    A = Jm @ T
+    alpha = math.asin(sa)
+    _, Jm = _camera_jacobian(model, e)
+    A = Jm @ nb_tangent_basis(e)
     P_c = A @ C[:2, :2] @ A.T
-    cov_c = A @ C[:2, 2] * prior_sigma_m
     var_h = float(C[2, 2]) * prior_sigma_m**2
-    r = np.arccos(np.clip(Hc @ e, -1.0, 1.0)) - alpha
-    return EdgeHeightFit(e_fit=e, alpha=alpha, height_m=d, sigma_m=math.sqrt(max(var_h, 0.0)), data_height_m=h_data,
+    return EdgeHeightFit(e_fit=e, alpha=alpha, height_m=float(d), sigma_m=math.sqrt(max(var_h, 0.0)),
+                         data_height_m=float(h_data),
                          data_sigma_m=math.sqrt(var_data) * prior_sigma_m if var_data < 1e12 else math.inf,
-                         P_c=0.5 * (P_c + P_c.T), cov_c=cov_c, from_arc=var_h < constrained_ratio * prior_sigma_m**2,
-                         residual=float(np.mean(r * r)))
+                         P_c=0.5 * (P_c + P_c.T), cov_c=A @ C[:2, 2] * prior_sigma_m,
+                         from_arc=var_h < constrained_ratio * prior_sigma_m**2,
+                         residual=float(_mean_sq_residual(Hc, e, alpha)))
 
 
 def fit_edge_reselect(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, inliers: np.ndarray,
