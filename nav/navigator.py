@@ -168,6 +168,13 @@ class NavResult:
     #: re-initialisations from GPS after an IMU gap or a divergence (:mod:`nav.recovery`):
     #: ``(t_ns, reason, details)`` with reason ``"imu_gap"`` or ``"divergence"``
     recoveries: list = field(default_factory=list)
+    #: (K, n) at each covariance epoch, the fed-back estimate of every estimated state beyond dx,
+    #: dv, psi in the layout's coordinates (:func:`estimates_from_fed`); 0 for the navigation and
+    #: the considered states
+    estimates: np.ndarray | None = None
+    #: (K, 9, 9) the covariance of dx, dv, psi at each covariance epoch (after any update): the
+    #: full navigation block, where ``P_diag`` keeps only the diagonal between updates
+    P_nav: np.ndarray | None = None
 
     def nis(self, kind: str) -> np.ndarray:
         return np.array([i.nis for i in self.innovations if i.kind == kind and i.accepted])
@@ -295,6 +302,8 @@ class _Recorder:
         self.P_full = np.empty((M_max, n, n))
         self.meas_t = np.empty(M_max, dtype=np.int64)
         self.R_bc_hist = np.empty((M_max, n_cam, 3, 3))
+        self.fed = np.empty((K_max, st.fed.size))   # the fed-back estimates at each covariance epoch
+        self.P_nav = np.empty((K_max, 9, 9))          # and the navigation block of P
         self.clk_t = np.empty((M_max, n_cam))
         self.kc, self.mc = 1, 0   # covariance and update epochs so far
         self.tri_t, self.tri_in, self.innovations = [], [], []
@@ -307,17 +316,21 @@ class _Recorder:
             self.st_A[0], self.st_d[0], self.st_P[0] = 0.0, 1.0, st.P
         self.cov_idx[0] = 0
         self.P_diag[0] = st.P.diagonal()
+        self.fed[0] = st.fed
+        self.P_nav[0] = st.P[:9, :9]
         self.traj[0] = st.nav
 
     def transition(self):
         """Where the next block's transition goes: (9, n) rows and (n,) diagonal."""
         return (self.st_A[self.kc], self.st_d[self.kc]) if self.store else (self.A, self.d)
 
-    def covariance_epoch(self, k: int, P) -> None:
+    def covariance_epoch(self, k: int, st: FilterState) -> None:
         self.cov_idx[self.kc] = k
-        self.P_diag[self.kc] = P.diagonal()
+        self.P_diag[self.kc] = st.P.diagonal()
+        self.fed[self.kc] = st.fed
+        self.P_nav[self.kc] = st.P[:9, :9]
         if self.store:
-            self.st_P[self.kc] = P
+            self.st_P[self.kc] = st.P
         self.kc += 1
 
     def update_epoch(self, k: int, t: int, st: FilterState, dx) -> None:
@@ -325,6 +338,8 @@ class _Recorder:
         kc, mc = self.kc, self.mc
         self.traj[k] = st.nav
         self.P_diag[kc - 1] = st.P.diagonal()
+        self.fed[kc - 1] = st.fed
+        self.P_nav[kc - 1] = st.P[:9, :9]
         self.meas_t[mc] = t
         self.P_full[mc] = st.P
         if self.n_cam:
@@ -341,6 +356,8 @@ class _Recorder:
         segments before and after are smoothed almost independently)."""
         self.traj[k] = st.nav
         self.P_diag[self.kc - 1] = st.P.diagonal()
+        self.fed[self.kc - 1] = st.fed
+        self.P_nav[self.kc - 1] = st.P[:9, :9]
         if self.store:
             self.st_P[self.kc - 1] = st.P
 
@@ -460,7 +477,7 @@ class _Loop:
             A_out, d_out = rec.transition()
             st.propagate(self.ts, self.fw, rec.traj, k, k_end, self.avg, A_out, d_out)
             k = k_end
-            rec.covariance_epoch(k, st.P)
+            rec.covariance_epoch(k, st)
             if k >= self.rcv.next_gap:
                 self.rcv.passed(k)
 
@@ -554,4 +571,27 @@ def _result(st: FilterState, rec: _Recorder, t_ns, R_bc_nom, unaided, rejected, 
         innovations=rec.innovations, misalignment_t_ns=rec.meas_t[:mc_cam].copy(),
         misalignment=mis, misalignment_sigma=mis_sig, triad_t_ns=tri_t, triad_q_eb=tri_q,
         rejected=dict(rejected), calibration=st.calibration, R_bc=st.R_bc.copy(), store=rec.smoother_store(),
-        clock_offset=clk, clock_offset_sigma=clk_sig, recoveries=list(recoveries))
+        clock_offset=clk, clock_offset_sigma=clk_sig, recoveries=list(recoveries),
+        estimates=estimates_from_fed(st.layout, st.fb, rec.fed[:kc], R_bc_nom), P_nav=rec.P_nav[:kc])
+
+
+def estimates_from_fed(layout: StateLayout, fb: np.ndarray, fed: np.ndarray, R_bc_nom: np.ndarray) -> np.ndarray:
+    """(K, n) estimates in the layout's coordinates from the fed-back arrays ``fed`` (K, m) laid
+    out as ``FilterState.fed``, through the feedback table ``fb``
+    (:func:`nav.filter_state.feedback_table`): an additive group (IMU errors into the calibration,
+    zeta, clock offsets) is its accumulated value, a camera misalignment the rotation vector of
+    ``R_bc R_bc_nom^T`` (003 eq. (50) composes the corrections as rotations). Navigation and
+    considered states are 0."""
+    from nav.filter_state import FB_ADD1, FB_ADD3, FB_ROTATE
+    K = fed.shape[0]
+    out = np.zeros((K, layout.n))
+    for op, off, col in fb.tolist():
+        if op == FB_ADD3:
+            out[:, col:col + 3] = fed[:, off:off + 3]
+        elif op == FB_ADD1:
+            out[:, col] = fed[:, off]
+        elif op == FB_ROTATE:
+            c = (off - 18) // 9
+            R = fed[:, off:off + 9].reshape(K, 3, 3)
+            out[:, col:col + 3] = matrix_to_rotvec(R @ R_bc_nom[c].T)
+    return out

@@ -40,7 +40,7 @@ import numba as nb
 import numpy as np
 
 from nav.navigator import NavResult
-from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+from nav.rotation import matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
 
 
 def rts(xs_post, Ps_post, xs_prior, Ps_prior, Phis):
@@ -72,6 +72,11 @@ class SmoothResult:
     x_e: np.ndarray         #: (K, 3) smoothed position at the epochs
     v_e: np.ndarray
     q_eb: np.ndarray
+    #: (K, n) smoothed estimates of the states beyond dx, dv, psi, in the coordinates of
+    #: ``NavResult.estimates`` (:func:`smoothed_estimates`); None when the forward run has none
+    estimates: np.ndarray | None = None
+    #: (K, 9, 9) smoothed covariance of dx, dv, psi (the full navigation block)
+    P_nav: np.ndarray | None = None
 
 
 @nb.njit(cache=True, fastmath={"contract"})
@@ -123,7 +128,7 @@ def _chol_solve(U, B):
 
 
 @nb.njit(cache=True, nogil=True, fastmath={"contract"})
-def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Ps, k_start):
+def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Pn, Ps, k_start):
     """Backward RTS pass of :func:`rts_smooth` (module docstring) from epoch ``k_start`` down to 0.
 
     Parameters
@@ -131,8 +136,8 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Ps, k_start):
     P_prior : (K, n, n); post : (K,) row of ``P_full`` with the posterior (-1: the prior);
     A, dphi : (K, 9, n), (K, n) transition from k-1 to k; dxs : (K, n) fed-back corrections;
     est : (n,) bool; d : (K, n) smoothed errors (row ``k_start + 1`` given, rows below written);
-    Pd : (K, n) smoothed variances (written); Ps : (n, n) smoothed covariance at ``k_start + 1``,
-    updated in place.
+    Pd : (K, n) smoothed variances (written); Pn : (K, 9, 9) smoothed navigation block (written);
+    Ps : (n, n) smoothed covariance at ``k_start + 1``, updated in place.
 
     Returns
     -------
@@ -199,6 +204,7 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Ps, k_start):
                 Ps[a, b] = v
                 Ps[b, a] = v
             Pd[k, a] = Ps[a, a]
+        Pn[k] = Ps[:9, :9]
     return -1
 
 
@@ -212,6 +218,7 @@ def rts_smooth(res: NavResult) -> SmoothResult:
     est = res.layout.estimated_mask
     d = np.zeros((K, n))
     Pd = np.zeros((K, n))
+    Pn = np.zeros((K, 9, 9))
     P_full = res.P_full if res.P_full.size else np.zeros((1, n, n))
 
     def post(k):
@@ -219,9 +226,10 @@ def rts_smooth(res: NavResult) -> SmoothResult:
 
     Ps = np.array(post(K - 1), dtype=float, order="C")
     Pd[-1] = np.diag(Ps)
+    Pn[-1] = Ps[:9, :9]
     k = K - 2
     while k >= 0:
-        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, est, d, Pd, Ps, k)
+        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, est, d, Pd, Pn, Ps, k)
         if k < 0:
             break
         # P_{k+1}- not positive definite: least squares for this epoch (numpy), then on
@@ -236,10 +244,28 @@ def rts_smooth(res: NavResult) -> SmoothResult:
         Ps = P_post + C @ (Ps - Pp) @ C.T
         Ps = np.ascontiguousarray(0.5 * (Ps + Ps.T))
         Pd[k] = np.diag(Ps)
+        Pn[k] = Ps[:9, :9]
         k -= 1
     idx = np.asarray(st.idx)
     lay = res.layout
     x = res.x_e[idx] + d[:, lay["dx"]]
     v = res.v_e[idx] + d[:, lay["dv"]]
     q = matrix_to_quat(rotvec_to_matrix(d[:, lay["psi"]]) @ quat_to_matrix(res.q_eb[idx]))
-    return SmoothResult(res.t_ns[idx], idx, d, Pd, x, v, q)
+    est = None if res.estimates is None else smoothed_estimates(lay, res.estimates, d)
+    return SmoothResult(res.t_ns[idx], idx, d, Pd, x, v, q, est, Pn)
+
+
+def smoothed_estimates(layout, estimates, d):
+    """The forward estimates (K, n) corrected by the smoothed errors ``d`` (K, n) the way the
+    forward filter feeds its corrections back (:func:`nav.filter_state.feedback_table`): camera
+    misalignments compose as rotations, ``exp([d x]) exp([e x])`` (003 eq. (50)), every other
+    estimated group adds; navigation and considered states stay 0."""
+    out = np.array(estimates, dtype=float)
+    for g in layout.groups:
+        if not g.estimated or g.name in ("dx", "dv", "psi"):
+            continue
+        if g.name.startswith("psi_c_"):
+            out[:, g.slice] = matrix_to_rotvec(rotvec_to_matrix(d[:, g.slice]) @ rotvec_to_matrix(out[:, g.slice]))
+        else:
+            out[:, g.slice] += d[:, g.slice]
+    return out

@@ -92,7 +92,8 @@ def rocket_tables(d: Path, seed: int = 3, duration: float = 120.0):
     return fl
 
 
-def _R_nb(roll, pitch, yaw):
+def R_nb_zyx(roll, pitch, yaw):
+    """Body -> north-east-down rotation of z-y-x Euler angles [rad], written out element by element."""
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
     R = np.empty(roll.shape + (3, 3))
     R[..., 0, 0] = cp * cy
@@ -126,7 +127,7 @@ def plane_truth(duration=180.0, rate=100.0):
     x = earth.geodetic_to_ecef(lat, lon, h0 - dn[:, 2])
     v = np.gradient(x, h, axis=0)
     a = np.gradient(v, h, axis=0)
-    R_eb = earth.R_en(lat, lon) @ _R_nb(roll, pitch, yaw)
+    R_eb = earth.R_en(lat, lon) @ R_nb_zyx(roll, pitch, yaw)
     f_e = a - earth.gravity_e(x) + 2.0 * np.cross(earth.OMEGA_IE_E, v)
     f_b = np.einsum("nji,nj->ni", R_eb, f_e)
     dR = np.einsum("nji,njk->nik", R_eb[:-2], R_eb[2:])      # R_b(t-h) b(t+h)
@@ -154,4 +155,48 @@ def plane_tables(d: Path, seed: int = 1, duration: float = 180.0, sensor_R=None)
 
 
 __all__ = ["T0", "LIFTOFF", "mapping", "rocket_tables", "plane_tables", "plane_truth", "write_csv",
-           "gps_columns", "imu_columns", "quat_to_matrix"]
+           "gps_columns", "imu_columns", "quat_to_matrix", "R_nb_zyx", "sample_tables"]
+
+
+#: the sample of scenarios/library/import/sample/ (README "What a user runs"): its start (GPS week
+#: and seconds of week of 2024-05-14T09:30:00Z) and the body axes in the IMU's sensor axes
+SAMPLE_START_UTC = "2024-05-14T09:30:00Z"
+SAMPLE_AXES = ("+y", "+x", "-z")     # body x = sensor +y, body y = sensor +x, body z = sensor -z
+
+
+def sample_tables(d: Path, duration: float = 80.0, rate: float = 40.0, seed: int = 7) -> None:
+    """The import sample: the aircraft-like flight of :func:`plane_truth` (20 s at rest, take-off
+    roll, S-turns) as a receiver and an IMU would log it: both stamped in GPS week and seconds of
+    week, the IMU at ``rate`` in deg/s and g in its own axes (``SAMPLE_AXES``) with white noise
+    (0.0115 deg/s, 0.5 mg) and the output resolution of a MEMS unit (1e-4 deg/s, 1e-5 g), the
+    receiver at 5 Hz with geodetic position (noise 1.5 m north/east, 3 m down), NED velocity
+    (0.05 m/s) and the sigma columns it reports."""
+    from nav.timescales import parse_utc, utc_to_gps_ns
+    rng = np.random.default_rng(seed)
+    t, x, v, R_eb, f_b, w_b = plane_truth(duration, rate)
+    R_bs = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])   # rows: body axes in sensor axes
+    w_s = (w_b + rng.normal(0, 2e-4, w_b.shape)) @ R_bs
+    f_s = (f_b + rng.normal(0, 5e-3, f_b.shape)) @ R_bs
+    gps0 = int(utc_to_gps_ns(parse_utc(SAMPLE_START_UTC)))
+    week, sow0 = divmod(gps0, 604800 * 10 ** 9)
+
+    def stamps(tt):
+        return {"gps_week": np.full(tt.size, week, np.int64), "tow_s": np.round(sow0 / 1e9 + tt, 3)}
+    imu = stamps(t)
+    imu.update({f"gyro_{a}_dps": np.round(np.degrees(w_s[:, i]), 4) for i, a in enumerate("xyz")})
+    imu.update({f"acc_{a}_g": np.round(f_s[:, i] / 9.80665, 5) for i, a in enumerate("xyz")})
+    write_csv(d / "imu.csv", imu)
+    k = np.arange(0, len(t), int(round(rate / 5.0)))
+    lat, lon, h = earth.ecef_to_geodetic(x[k])
+    sig = np.array([1.5, 1.5, 3.0])
+    dn = rng.normal(0, 1, (k.size, 3)) * sig
+    lat = lat + dn[:, 0] / earth.meridian_radius(lat)
+    lon = lon + dn[:, 1] / (earth.prime_vertical_radius(lat) * np.cos(lat))
+    vn = np.einsum("nji,nj->ni", earth.R_en(lat, lon), v[k]) + rng.normal(0, 0.05, (k.size, 3))
+    gps = stamps(t[k])
+    gps.update({"lat_deg": np.round(np.degrees(lat), 8), "lon_deg": np.round(np.degrees(lon), 8),
+                "height_m": np.round(h - dn[:, 2], 3), "vel_n": np.round(vn[:, 0], 3), "vel_e": np.round(vn[:, 1], 3),
+                "vel_d": np.round(vn[:, 2], 3), "sigma_n": np.full(k.size, sig[0]),
+                "sigma_e": np.full(k.size, sig[1]), "sigma_d": np.full(k.size, sig[2]),
+                "sigma_vel": np.full(k.size, 0.05), "sats": np.full(k.size, 11, np.int64)})
+    write_csv(d / "gps.csv", gps)

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.import_flights import R_nb_zyx
+
 from scenarios.errors import UserError
 from tests.test_replay import _opt
 
@@ -95,8 +97,12 @@ def test_readme_example(vlog, tmp_path, monkeypatch):
                         r"\d+ used, \d+ rejected\)", repr(sol)), repr(sol)
     assert repr(sm) == f"Smoothed(T+60.0 .. T+140.0 s, {len(sol.nav.cov_t_ns)} epochs, init triad)"
     cols = ["t_ns", "t_plus_s", "lat", "lon", "height", "x", "y", "z", "vx", "vy", "vz", "VN", "VE", "VD",
-            "roll", "pitch", "heading", "x_sd", "y_sd", "z_sd", "pos_sd", "vx_sd", "vy_sd", "vz_sd", "vel_sd",
-            "psi_x_sd", "psi_y_sd", "psi_z_sd", "att_sd"]
+            "qx", "qy", "qz", "qw", "roll", "pitch", "heading", "x_sd", "y_sd", "z_sd", "pos_sd", "vx_sd", "vy_sd",
+            "vz_sd", "vel_sd", "psi_x_sd", "psi_y_sd", "psi_z_sd", "att_sd", "N_sd", "E_sd", "D_sd", "VN_sd",
+            "VE_sd", "VD_sd", "roll_sd", "pitch_sd", "heading_sd"]
+    # the estimated states of the default tuning with two cameras: accelerometer bias and the
+    # cameras' misalignments, each with its 1-sigma
+    cols += [f"{g}_{a}{sd}" for g in ("accel_bias", "psi_c_1", "psi_c_2") for a in "xyz" for sd in ("", "_sd")]
     for f in (df, fwd):
         assert list(f.columns) == cols
         assert len(f) == len(sol.nav.cov_t_ns) and f.index.name == "time" and str(f.index.tz) == "UTC"
@@ -125,13 +131,7 @@ def test_readme_example(vlog, tmp_path, monkeypatch):
     np.testing.assert_allclose(df[["VN", "VE", "VD"]].to_numpy(),
                                np.einsum("kij,kj->ki", R_ne, df[["vx", "vy", "vz"]].to_numpy()), atol=1e-9)
     r, p, y = np.radians(df["roll"]), np.radians(df["pitch"]), np.radians(df["heading"])
-    Rz = np.stack([np.stack([np.cos(y), -np.sin(y), 0 * y], -1), np.stack([np.sin(y), np.cos(y), 0 * y], -1),
-                   np.stack([0 * y, 0 * y, 1 + 0 * y], -1)], -2)
-    Ry = np.stack([np.stack([np.cos(p), 0 * p, np.sin(p)], -1), np.stack([0 * p, 1 + 0 * p, 0 * p], -1),
-                   np.stack([-np.sin(p), 0 * p, np.cos(p)], -1)], -2)
-    Rx = np.stack([np.stack([1 + 0 * r, 0 * r, 0 * r], -1), np.stack([0 * r, np.cos(r), -np.sin(r)], -1),
-                   np.stack([0 * r, np.sin(r), np.cos(r)], -1)], -2)
-    np.testing.assert_allclose(Rz @ Ry @ Rx, R_ne @ quat_to_matrix(sm.result.q_eb), atol=1e-9)
+    np.testing.assert_allclose(R_nb_zyx(r, p, y), R_ne @ quat_to_matrix(sm.result.q_eb), atol=1e-9)
     assert np.all((df["heading"] >= 0) & (df["heading"] < 360))
     assert euler_zyx_deg(np.eye(3)) == (0.0, -0.0, 0.0)
 

@@ -147,8 +147,10 @@ def test_camera_info_roundtrip():
     back = from_camera_info(info)
     rays = _image_rays(cam, np.random.default_rng(5), 1000)
     assert np.max(np.abs(project(back, rays) - project(cam, rays))) < 1e-9
-    with pytest.raises(ValueError, match="distortion_model 'plumb_bob'"):
-        from_camera_info(dict(info, distortion_model="plumb_bob"))
+    with pytest.raises(ValueError, match="distortion_model 'fov'"):
+        from_camera_info(dict(info, distortion_model="fov"))
+    with pytest.raises(ValueError, match="'rational_polynomial' takes 8"):
+        from_camera_info(dict(info, distortion_model="rational_polynomial"))
 
 
 def test_non_monotonic_polynomial_is_rejected():
@@ -221,5 +223,7 @@ def test_dict_roundtrip_and_errors():
         camera_from_dict(dict(camera_to_dict(cam), opencv_D=[0, 0, 0, 0]))
     with pytest.raises(ValueError, match="unknown key"):
         camera_from_dict(dict(camera_to_dict(cam), k6=1.0))
-    with pytest.raises(ValueError, match="'model'"):
+    with pytest.raises(ValueError, match="'model' = 'orthographic'"):
+        camera_from_dict(dict(camera_to_dict(cam), model="orthographic"))
+    with pytest.raises(ValueError, match="key 'k' does not apply to model 'pinhole'"):
         camera_from_dict(dict(camera_to_dict(cam), model="pinhole"))

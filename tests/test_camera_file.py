@@ -66,4 +66,4 @@ def test_missing_file(tmp_path):
 def test_dumps_is_loadable_toml():
     import tomllib
     d = tomllib.loads(dumps_camera(atek_camera()))
-    assert d["camera"]["model"] == "fisheye-odd-poly" and d["camera"]["k"] == [1.0, 0.08, -0.01, 0.0, 0.0]
+    assert d["camera"]["model"] == "fisheye" and d["camera"]["k"] == [1.0, 0.08, -0.01, 0.0, 0.0]

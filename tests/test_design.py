@@ -256,3 +256,17 @@ def test_cli_camera_file_and_errors(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = _cli("sensitivity", "--camera", str(tmp_path / "missing.toml"), "-o", str(tmp_path))
     assert r.returncode == 2 and "missing.toml" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_camera_file_pinhole_matches_the_ideal_pinhole():
+    """A distortion-free camera-file pinhole (vision.pinhole, through unproject_jacobian) gives the
+    ideal pinhole's sigmas (its closed-form Jacobian) for the same geometry: the two paths compute
+    the same covariance, so they agree to rounding (1e-9 relative)."""
+    from vision.camera import PinholeCamera as FilePinhole
+
+    cam = FilePinhole(1280, 960, 2000.0, 2000.0, 639.5, 479.5, name="ideal")
+    kw = dict(height=30e3, fov_deg=25.0, resolution=960, form="constrained", step_px=2.0)  # horizon dip 5.6 deg: in view
+    ideal = roll_pitch_sigma(SensitivityCase(aspect=4 / 3, fov_axis="horizontal", **kw))
+    filed = roll_pitch_sigma(SensitivityCase(camera=cam, **kw))
+    assert filed[2] == ideal[2] and ideal[2] > 100
+    assert filed[0] == pytest.approx(ideal[0], rel=1e-9) and filed[1] == pytest.approx(ideal[1], rel=1e-9)

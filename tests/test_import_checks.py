@@ -26,7 +26,7 @@ from scenarios.importer.mapping import load_mapping
 from tests.import_flights import T0, mapping, plane_tables, rocket_tables, write_csv
 
 ROOT = Path(__file__).resolve().parents[1]
-CROSS = ("gps_velocity", "specific_force", "gyro_rotation", "body_axes")
+CROSS = ("gps_velocity", "specific_force", "time_lag", "gyro_rotation", "body_axes")
 
 
 @pytest.fixture(scope="module")
@@ -128,6 +128,19 @@ def test_ned_velocity_declared_ecef_refused(rocket, plane, capsys):
                  "likely cause: NED velocities declared as frame = 'ecef'")
 
 
+def test_gps_time_offset_refused_naming_the_cause(rocket, plane, capsys):
+    """GPS stamps shifted against the IMU's: by the 18 s of GPS - UTC in 2019 (GPS time read as UTC)
+    and by half a second (a latency). The boost (rocket) and the turns (aircraft) fix the lag; the
+    simulated sensors share one clock, so the correct flights give 0.00 s (test above)."""
+    d, _ = rocket
+    _refused(d, mapping(d, "leap.toml", gps_week=", offset_s = 18.0"), capsys, "gps time_lag:",
+             "GPS stamps +18.00 s off the IMU's", "GPS time read as UTC or UTC as GPS time (GPS - UTC = 18 s",
+             "offset_s = -18.000 in [gps.time] corrects it")
+    for d, _ in (rocket, plane):
+        _refused(d, mapping(d, "late.toml", gps_week=", offset_s = 0.5"), capsys, "gps time_lag:",
+                 "GPS stamps +0.50 s off the IMU's", "a receiver latency or a clock offset")
+
+
 def test_lat_lon_swapped_refused(rocket, plane, capsys):
     for d, _ in (rocket, plane):
         _refused(d, mapping(d, "swap.toml", latlon='"lon", "lat"'), capsys, "gps gps_velocity:",
@@ -163,26 +176,35 @@ def test_sensor_axes_left_up_without_axes_refused(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------------------------
-def _replay_error(d, log, fl, name, tuning=None):
+def _replay_error(d, log, fl, name, tuning=None, smoother=False):
     """Replay T+60..T+120 (the coast) from the true attitude at T+60, position and velocity from
-    the GPS; the position error [m] at the end of the forward solution."""
+    the GPS; the position error [m] at the end of the forward solution (and with ``smoother``, the
+    RMS error of the smoothed solution from T+70 on: the first 10 s hold the start's transient)."""
     from scenarios.replay.pipeline import ReplayOptions, replay
     tr = fl.truth
     i = int(np.searchsorted(tr.t, 60.0))
     init = d / "init.toml"
     init.write_text(f'time = "T+60"\nq_eb = {list(map(float, tr.q_eb[i]))}\n')
     opt = ReplayOptions(t_from="T+60", t_to="T+120", init="given", init_file=str(init), workers=1, vision="auto",
-                        smoother=False, output=str(d / f"{name}.solution.mcap"), rrd="", progress=False,
+                        smoother=smoother, output=str(d / f"{name}.solution.mcap"), rrd="", progress=False,
                         tuning=tuning)
     r = replay(log, opt)
-    t = (r.nav.t_ns - T0) / 1e9
-    j = np.clip(np.searchsorted(tr.t, t - 1e-9), 0, tr.t.size - 1)
-    assert np.all(np.abs(tr.t[j] - t) < 1e-6)
-    err = np.linalg.norm(r.nav.x_e - tr.x_e[j], axis=1)
+
+    def error(t_ns, x):
+        t = (t_ns - T0) / 1e9
+        j = np.clip(np.searchsorted(tr.t, t - 1e-9), 0, tr.t.size - 1)
+        assert np.all(np.abs(tr.t[j] - t) < 1e-6)
+        return t, np.linalg.norm(x - tr.x_e[j], axis=1)
+    t, err = error(r.nav.t_ns, r.nav.x_e)
     last = t > t[-1] - 30.0
     print(f"\n{name}: position error at the end {err[-1]:.3f} m, RMS over the last 30 s "
           f"{np.sqrt(np.mean(err[last] ** 2)):.3f} m, max {err.max():.3f} m")
-    return float(err[-1]), r
+    if not smoother:
+        return float(err[-1]), r
+    ts, es = error(r.smooth.t_ns, r.smooth.x_e)
+    rms = float(np.sqrt(np.mean(es[ts >= 70.0] ** 2)))
+    print(f"{name}: smoothed position error RMS from T+70 {rms:.3f} m")
+    return float(err[-1]), r, rms
 
 
 def test_position_only_gps_imports_and_replays(rocket):
@@ -201,17 +223,29 @@ def test_position_only_gps_imports_and_replays(rocket):
     again = read_log(d / "posonly-again.mcap").gps
     assert np.array_equal(again.position, log.gps.position) and np.all(np.isnan(again.velocity))
     import_flight(mapping(d, "posvel.toml"), d / "posvel.mcap")
-    e_pv, _ = _replay_error(d, d / "posvel.mcap", fl, "posvel")
-    e_po, r = _replay_error(d, d / "posonly.mcap", fl, "posonly")
-    print(f"\nposition error at T+120: pos+vel {e_pv:.3f} m, position only {e_po:.3f} m")
+    e_pv, _, s_pv = _replay_error(d, d / "posvel.mcap", fl, "posvel", smoother=True)
+    e_po, r, s_po = _replay_error(d, d / "posonly.mcap", fl, "posonly", smoother=True)
+    print(f"\nposition error at T+120 (forward): pos+vel {e_pv:.3f} m, position only {e_po:.3f} m; smoothed RMS "
+          f"from T+70: pos+vel {s_pv:.3f} m, position only {s_po:.3f} m")
     kinds = {(i.kind, i.accepted) for i in r.nav.innovations}
     assert ("gps_vel", True) not in kinds and ("gps_vel", False) not in kinds
     acc = [i.accepted for i in r.nav.innovations if i.kind == "gps_pos"]
     assert np.mean(acc) > 0.95
-    # Both are sub-metre (the fixes are 3 m, 1 sigma). Without the 0.1 m/s velocities the end
-    # point rests on the positions alone: about sigma_p / sqrt(n) for the n = 600 fixes of the
-    # coast, 0.3-0.7 m, against 0.25 m with velocities; measured 0.65 m, 2.6 x.
-    assert e_po < 1.0 and e_po <= 3.0 * e_pv
+    # The initial velocity of the position-only run is the fixes' slope over +-1 s, and the
+    # filter starts with its sigma (1.08 m/s here: 21 fixes of 3 m), not the 0.1 m/s meant for a
+    # measured velocity.
+    assert r.nav.P_diag[0, 3:6] == pytest.approx([3.0 ** 2 / 7.7] * 3, rel=0.01)   # sum (t - mean t)^2 = 7.7 s^2
+    # Bounds (3 m fixes at 10 Hz over the 60 s coast, 600 fixes): without velocities the positions
+    # alone carry the solution, and the 2 mg accelerometer bias must come from their curvature:
+    # the Cramer-Rao bound of a quadratic fit is 0.63 m (3D) at the end point and 0.37 m RMS over
+    # the window, against 0.21 m for positions averaged with a perfectly known velocity. Measured
+    # on this flight (seed 3): smoothed RMS 0.31 m against 0.20 m (1.5 x; over 8 seeds 0.39 m
+    # against 0.22 m, 1.8 x), the post-flight product and within the acceptance's 2 x; the
+    # forward end point 0.56 m against 0.25 m (2.2 x; over 8 seeds 0.65 m against 0.28 m, 2.3 x,
+    # at its bound), which no filter brings to 2 x. Hence 2 x on the smoothed RMS and 2.5 x on the
+    # forward end point.
+    assert s_po <= 2.0 * s_pv and s_po < 0.5
+    assert e_po < 1.0 and e_po <= 2.5 * e_pv
 
 
 def test_gps_without_sigmas_takes_defaults_with_a_warning(rocket, capsys):

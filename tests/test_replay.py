@@ -80,6 +80,9 @@ def test_replay_without_truth(vlog, tmp_path):
     s = summarize(rr)
     assert "truth" not in s and rr.init_method == "triad"
     assert "errors against truth" not in format_table(s)
+    # each camera's model and field of view from the log's CameraInfo (the ATEK fisheye: 94.40 deg)
+    assert "camera_1: camera (fisheye, 1920x1080 px" in format_table(s)
+    assert "FOV 94.40 deg horizontal" in s["cameras"]["camera_1"]
 
 
 def test_bad_input(vlog, tmp_path):

@@ -66,14 +66,17 @@ def test_rts_kernel_equals_numpy_recursion():
     est = res.layout.estimated_mask
     post = lambda k: res.P_full[st.post[k]] if st.post[k] >= 0 else st.P_prior[k]
     K, n = st.P_prior.shape[:2]
-    d = np.zeros((K, n)); Pd = np.zeros((K, n))
-    Ps = post(K - 1); Pd[-1] = np.diag(Ps)
+    d = np.zeros((K, n)); Pd = np.zeros((K, n)); Pn = np.zeros((K, 9, 9))
+    Ps = post(K - 1); Pd[-1] = np.diag(Ps); Pn[-1] = Ps[:9, :9]
     for k in range(K - 2, -1, -1):
         Phi = st.transition(k + 1).full()
         C = post(k) @ Phi.T @ np.linalg.inv(st.P_prior[k + 1])
         d[k] = C @ (d[k + 1] + st.dx[k + 1]); d[k, ~est] = 0
         Ps = post(k) + C @ (Ps - st.P_prior[k + 1]) @ C.T
-        Pd[k] = np.diag(Ps)
+        Pd[k] = np.diag(Ps); Pn[k] = Ps[:9, :9]
     scale = np.abs(d).max(axis=0)
     assert np.all(np.abs(sm.d - d) <= 1e-10 * scale + 1e-300)
     np.testing.assert_allclose(sm.P, Pd, rtol=1e-8)
+    # the navigation block: its diagonal is Pd's; off-diagonal terms to 1e-8 of the diagonal scale
+    sc = np.sqrt(np.einsum("kii,kjj->kij", Pn, Pn))
+    assert np.all(np.abs(sm.P_nav - Pn) <= 1e-8 * sc)

@@ -20,10 +20,11 @@ import importlib
 
 __all__ = ["process_frame", "default_config", "resolve_search_lines", "TARGETS", "VisionConfig", "TargetConfig",
            "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "LimbOptions", "FlankOptions",
-           "CalibrationOptions", "EdgeHeightOptions", "FramePrior", "VectorRecord", "CandidateResult", "TargetResult", "FrameResult",
-           "FisheyeCamera", "PayloadMask", "conic_polyline"]
+           "CalibrationOptions", "EdgeHeightOptions", "FramePrior", "VectorRecord", "CandidateResult", "TargetResult",
+           "FrameResult", "FisheyeCamera", "EquidistantCamera", "PinholeCamera", "PayloadMask", "conic_polyline"]
 
 _HOME = {"process_frame": "frontend", "conic_polyline": "image_geometry", "FisheyeCamera": "camera",
+         "EquidistantCamera": "camera", "PinholeCamera": "camera",
          "PayloadMask": "mask", "VectorRecord": "results", "CandidateResult": "results",
          "TargetResult": "results", "FrameResult": "results"}
 

@@ -14,7 +14,7 @@ import math
 import cv2
 import numpy as np
 
-from vision.camera import FisheyeCamera, project
+from vision.camera import Camera, project
 from vision.image_geometry import conic_polyline
 from vision.results import FrameResult
 
@@ -50,7 +50,7 @@ def _dots(img: np.ndarray, uv: np.ndarray, colour, radius: int = 0) -> None:
             img[iv, iu] = colour
 
 
-def annotate_frame(image: np.ndarray, camera: FisheyeCamera, result: FrameResult,
+def annotate_frame(image: np.ndarray, camera: Camera, result: FrameResult,
                    show_borders: bool = True) -> np.ndarray:
     """Return a BGR copy of ``image`` with the front end's work drawn on it (module docstring).
 

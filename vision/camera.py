@@ -1,4 +1,9 @@
-"""Radially symmetric fisheye camera model (003, §3.2, eqs. (12)-(16)).
+"""Camera models and their common interface: the radially symmetric fisheye (003, §3.2, eqs.
+(12)-(16), `FisheyeCamera`; OpenCV's fisheye is k = [1, d1..d4]), the equidistant fisheye
+(`EquidistantCamera`, k = [1]) and the pinhole with OpenCV's distortion (`PinholeCamera`,
+vision/pinhole.py). `project`, `unproject`, `unproject_jacobian`, `pixel_rays` and `fov_deg`
+take any of them; docs/cameras.md describes the models, their conversions and the camera files.
+The rest of this docstring describes the fisheye.
 
 Model
 -----
@@ -38,16 +43,28 @@ exist for theta >= 90 deg).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping, Sequence, Union
 
 import numba
 import numpy as np
 
-from vision._kernels import poly1, project1
+from vision._kernels import FISHEYE, poly1, project1
+from vision._intrinsics import Intrinsics, check_intrinsics
+from vision.pinhole import PinholeCamera, pinhole_unproject
 
 __all__ = [
     "FisheyeCamera",
+    "EquidistantCamera",
+    "PinholeCamera",
+    "Camera",
+    "CAMERA_TYPES",
+    "check_camera",
+    "check_intrinsics",
+    "fov_deg",
+    "describe",
+    "ROS_MODELS",
+    "MODELS",
     "MODEL_NAME",
     "project",
     "unproject",
@@ -67,7 +84,8 @@ __all__ = [
     "camera_to_dict",
 ]
 
-MODEL_NAME = "fisheye-odd-poly"
+MODEL_NAME = "fisheye"
+MODEL_NAME_LEGACY = "fisheye-odd-poly"
 _NEWTON_TOL = 1e-13  # rad; stop criterion of the inverse (requirement: < 1e-12 rad)
 _TABLE_SIZE = 4097
 
@@ -112,7 +130,7 @@ def _first_critical_angle(k: np.ndarray) -> float | None:
 
 
 @dataclass(frozen=True)
-class FisheyeCamera:
+class FisheyeCamera(Intrinsics):
     """Intrinsics of a radially symmetric fisheye camera (003 eqs. (13)-(16)).
 
     Parameters
@@ -134,37 +152,17 @@ class FisheyeCamera:
     (at the farthest image corner).
     """
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
     k: tuple[float, ...] = (1.0,)
     name: str = ""
-    max_theta: float = field(init=False, repr=False, compare=False)
-    max_radius: float = field(init=False, repr=False, compare=False)
-    fov_theta: float = field(init=False, repr=False, compare=False)
+    model: ClassVar[str] = "fisheye"
 
     def __post_init__(self) -> None:
-        label = f"camera {self.name!r}" if self.name else "camera"
+        label = check_intrinsics(self)
         k = tuple(float(c) for c in np.atleast_1d(np.asarray(self.k, dtype=float)))
         object.__setattr__(self, "k", k)
         if not 1 <= len(k) <= 5:
             raise ValueError(f"{label}: k must have 1 to 5 coefficients [k1..k5] (003 eq. (13)), "
                              f"got {len(k)}")
-        for nm in ("width", "height"):
-            v = getattr(self, nm)
-            if int(v) != v or v <= 0:
-                raise ValueError(f"{label}: {nm} must be a positive integer, got {v!r}")
-            object.__setattr__(self, nm, int(v))
-        for nm in ("fx", "fy", "cx", "cy"):
-            v = float(getattr(self, nm))
-            if not math.isfinite(v):
-                raise ValueError(f"{label}: {nm} must be finite, got {v!r}")
-            object.__setattr__(self, nm, v)
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"{label}: fx and fy must be positive, got fx={self.fx}, fy={self.fy}")
         if not all(math.isfinite(c) for c in k) or k[0] <= 0:
             raise ValueError(f"{label}: k = {list(k)} must be finite with k1 > 0")
         ka = np.asarray(k)
@@ -189,12 +187,8 @@ class FisheyeCamera:
                 f"180 deg hemisphere-plus range of the polynomial")
         object.__setattr__(self, "max_theta", float(max_theta))
         object.__setattr__(self, "max_radius", max_radius)
+        object.__setattr__(self, "_prm", np.array([self.fx, self.fy, self.cx, self.cy, max_theta, *k]))
         object.__setattr__(self, "fov_theta", float(inverse_radial(self, np.array(corner_r))))
-
-    @property
-    def K(self) -> np.ndarray:
-        """3x3 pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
     def coefficients(self) -> np.ndarray:
@@ -202,6 +196,31 @@ class FisheyeCamera:
         out = np.zeros(5)
         out[: len(self.k)] = self.k
         return out
+
+    def kernel_params(self) -> tuple[int, np.ndarray]:
+        """(model code, parameter array [fx, fy, cx, cy, max_theta, k1..kn]) for
+        `vision._kernels.project1`."""
+        return FISHEYE, self._prm
+
+
+@dataclass(frozen=True)
+class EquidistantCamera(FisheyeCamera):
+    """Equidistant fisheye r = f theta: the `FisheyeCamera` with k = [1] (no distortion
+    coefficients). Construct without ``k``; any other k raises ValueError."""
+
+    model: ClassVar[str] = "equidistant"
+
+    def __post_init__(self) -> None:
+        if tuple(np.atleast_1d(np.asarray(self.k, dtype=float)).tolist()) != (1.0,):
+            raise ValueError(f"camera {self.name!r}: the equidistant model has k = [1.0], got k = "
+                             f"{list(np.atleast_1d(self.k))}; use model 'fisheye' for distortion")
+        super().__post_init__()
+
+
+Camera = Union[FisheyeCamera, PinholeCamera]
+CAMERA_TYPES = (FisheyeCamera, PinholeCamera)
+
+
 
 
 # ----------------------------------------------------------------------------------------------
@@ -421,13 +440,13 @@ def _unproject_kernel(uv, fx, fy, cx, cy, k, inv_dr, th_tab, sl_tab, max_radius,
 
 
 @numba.njit(cache=True, nogil=True)
-def _project_kernel(p, fx, fy, cx, cy, k, max_theta):  # pragma: no cover - numba
-    """Pixels (n, 2) of rays p (n, 3): the formulas of `project` (NaN beyond max_theta and for
-    zero-length or straight-backward rays)."""
+def _project_kernel(p, model, prm):  # pragma: no cover - numba
+    """Pixels (n, 2) of rays p (n, 3) through the camera model (`vision._kernels.project1`: NaN
+    outside the model's valid range and for zero-length or straight-backward rays)."""
     n = p.shape[0]
     uv = np.empty((n, 2))
     for i in range(n):
-        uv[i, 0], uv[i, 1] = project1(p[i, 0], p[i, 1], p[i, 2], fx, fy, cx, cy, k, max_theta)
+        uv[i, 0], uv[i, 1] = project1(p[i, 0], p[i, 1], p[i, 2], model, prm)
     return uv
 
 
@@ -435,17 +454,18 @@ def _project_kernel(p, fx, fy, cx, cy, k, max_theta):  # pragma: no cover - numb
 # projection
 
 
-def project(camera: FisheyeCamera, rays_c: np.ndarray) -> np.ndarray:
-    """Pixels (..., 2) [u, v] of camera-frame rays (..., 3) of any length (003 eqs. (13)-(14)).
+def project(camera: Camera, rays_c: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) [u, v] of camera-frame rays (..., 3) of any length, through any camera model
+    (fisheye: 003 eqs. (13)-(14); pinhole: `vision.pinhole`).
 
-    theta may exceed 90 deg (rays with z <= 0) up to ``camera.max_theta``; rays beyond it and
-    zero-length rays give NaN.
+    For a fisheye theta may exceed 90 deg (rays with z <= 0) up to ``camera.max_theta``; rays
+    beyond the model's valid range and zero-length rays give NaN.
     """
     p = np.asarray(rays_c, dtype=float)
     if p.shape[-1] != 3:
         raise ValueError(f"project: rays_c must have shape (..., 3), got {p.shape}")
-    uv = _project_kernel(np.ascontiguousarray(p.reshape(-1, 3)), camera.fx, camera.fy, camera.cx, camera.cy,
-                         np.asarray(camera.k), camera.max_theta)
+    model, prm = camera.kernel_params()
+    uv = _project_kernel(np.ascontiguousarray(p.reshape(-1, 3)), model, prm)
     return uv.reshape(p.shape[:-1] + (2,))
 
 
@@ -456,19 +476,25 @@ def _pixels(uv: np.ndarray) -> np.ndarray:
     return uv
 
 
-def _unproject(camera: FisheyeCamera, uv: np.ndarray, jac: bool):
+def _unproject(camera: Camera, uv: np.ndarray, jac: bool):
     uv = _pixels(uv)
-    inv_dr, th_tab, sl_tab = _rtable(camera)
-    rays, J = _unproject_kernel(np.ascontiguousarray(uv.reshape(-1, 2)), camera.fx, camera.fy, camera.cx,
-                                camera.cy, np.asarray(camera.k), inv_dr, th_tab, sl_tab, camera.max_radius, jac)
+    if isinstance(camera, PinholeCamera):
+        rays, J = pinhole_unproject(np.ascontiguousarray(uv.reshape(-1, 2)), camera.kernel_params()[1], jac)
+    else:
+        inv_dr, th_tab, sl_tab = _rtable(camera)
+        rays, J = _unproject_kernel(np.ascontiguousarray(uv.reshape(-1, 2)), camera.fx, camera.fy, camera.cx,
+                                    camera.cy, np.asarray(camera.k), inv_dr, th_tab, sl_tab, camera.max_radius,
+                                    jac)
     lead = uv.shape[:-1]
     return rays.reshape(lead + (3,)), (J.reshape(lead + (3, 2)) if jac else None)
 
 
-def unproject(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
+def unproject(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Unit rays (..., 3) in the camera frame for pixels (..., 2); exact inverse of `project`.
 
-    Implements 003 eqs. (14)-(16) on the unit sphere (000, eq. (3)) instead of the z = f plane, so
+    Pinhole: the undistortion iterated to convergence (`vision.pinhole`). Fisheye:
+
+    003 eqs. (14)-(16) on the unit sphere (000, eq. (3)) instead of the z = f plane, so
     theta >= 90 deg is representable. Pixels outside the valid radius give NaN. With
     q = [(u - cx)/fx, (v - cy)/fy], r_d = |q|, theta = r_d^-1(r_d) (`inverse_radial`):
     ray = [sin(theta) q / r_d, cos(theta)] (one numba pass, `_unproject_kernel`).
@@ -476,10 +502,10 @@ def unproject(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
     return _unproject(camera, uv, False)[0]
 
 
-def unproject_jacobian(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def unproject_jacobian(camera: Camera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit rays (..., 3) and their Jacobian d ray / d [u, v] (..., 3, 2) [1/px].
 
-    With q = [(u - cx)/fx, (v - cy)/fy], r_d = |q|, theta = r_d^-1(r_d) and s = sin(theta)/r_d:
+    Pinhole: `vision.pinhole.pinhole_unproject`. Fisheye: with q = [(u - cx)/fx, (v - cy)/fy], r_d = |q|, theta = r_d^-1(r_d) and s = sin(theta)/r_d:
     ray = [s q, cos theta], d(s q)/dq = s I + (s'(r_d)/r_d) q q^T,
     d cos(theta)/dq = -sin(theta) theta'(r_d) q^T / r_d, theta' = 1 / (dr_d/dtheta).
     Near the axis (theta < 1e-3) the two ratios use their series limits. Used to carry the pixel
@@ -489,7 +515,7 @@ def unproject_jacobian(camera: FisheyeCamera, uv: np.ndarray) -> tuple[np.ndarra
     return _unproject(camera, uv, True)
 
 
-def pixel_rays(camera: FisheyeCamera) -> np.ndarray:
+def pixel_rays(camera: Camera) -> np.ndarray:
     """Unit ray of every pixel centre, shape (height, width, 3), float64 (for the renderer)."""
     v, u = np.mgrid[0: camera.height, 0: camera.width].astype(float)
     return unproject(camera, np.stack([u, v], axis=-1))
@@ -499,11 +525,13 @@ def pixel_rays(camera: FisheyeCamera) -> np.ndarray:
 # converters
 
 
-def from_opencv(K: np.ndarray, D: Sequence[float], width: int, height: int,
-                name: str = "") -> FisheyeCamera:
-    """Camera from OpenCV fisheye intrinsics (``cv2.fisheye``): K (3x3, zero skew), D = [d1..d4].
+def from_opencv(K: np.ndarray, D: Sequence[float], width: int, height: int, name: str = "",
+                model: str = "fisheye") -> Camera:
+    """Camera from OpenCV intrinsics: K (3x3, zero skew) and D.
 
-    theta_d = theta (1 + d1 theta^2 + ... + d4 theta^8) is 003 eq. (13) with k = [1, d1, .., d4].
+    ``model = "fisheye"`` (``cv2.fisheye``): D = [d1..d4]; theta_d = theta (1 + d1 theta^2 + ... +
+    d4 theta^8) is 003 eq. (13) with k = [1, d1, .., d4]. ``model = "pinhole"`` (``cv2.projectPoints``):
+    D = [k1, k2, p1, p2[, k3[, k4, k5, k6]]] (0, 4, 5 or 8 numbers), a `PinholeCamera`.
     """
     K = np.asarray(K, dtype=float)
     D = np.asarray(D, dtype=float).ravel()
@@ -511,20 +539,27 @@ def from_opencv(K: np.ndarray, D: Sequence[float], width: int, height: int,
         raise ValueError(f"from_opencv: K must be 3x3, got shape {K.shape}")
     if K[0, 1] != 0.0:
         raise ValueError(f"from_opencv: K[0,1] (skew) = {K[0, 1]} is not supported; expected 0")
+    if model == "pinhole":
+        if D.size not in (0, 4, 5, 8):
+            raise ValueError(f"from_opencv: the OpenCV pinhole model has 4, 5 or 8 distortion coefficients "
+                             f"[k1, k2, p1, p2[, k3[, k4, k5, k6]]], got {D.size} ({D.tolist()})")
+        return PinholeCamera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], tuple(D.tolist()), name=name)
+    if model != "fisheye":
+        raise ValueError(f"from_opencv: model {model!r}; expected 'fisheye' or 'pinhole'")
     if D.size != 4:
         raise ValueError(f"from_opencv: the OpenCV fisheye model has 4 distortion coefficients "
                          f"D = [d1, d2, d3, d4], got {D.size} ({D.tolist()}); a 5-coefficient D is "
-                         f"OpenCV's pinhole (k1, k2, p1, p2, k3) model, which is not this model")
+                         f"OpenCV's pinhole (k1, k2, p1, p2, k3) model (model='pinhole')")
     return FisheyeCamera(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
                          (1.0, *D.tolist()), name=name)
 
 
-def to_opencv(camera: FisheyeCamera) -> tuple[np.ndarray, np.ndarray]:
-    """(K, D) for ``cv2.fisheye``; k1 is folded into fx, fy (fx' = k1 fx, d_i = k_{i+1}/k1).
-
-    Every model of this class is representable (k1 > 0 is enforced); the result projects
-    identically.
-    """
+def to_opencv(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(K, D): for a fisheye, for ``cv2.fisheye`` with k1 folded into fx, fy (fx' = k1 fx,
+    d_i = k_{i+1}/k1; every model of the class is representable, k1 > 0 being enforced); for a
+    pinhole, for ``cv2.projectPoints`` (D as given, 5 zeros when none). Projects identically."""
+    if isinstance(camera, PinholeCamera):
+        return camera.K, (np.asarray(camera.dist, dtype=float) if camera.dist else np.zeros(5))
     c = camera.coefficients
     k1 = c[0]
     if not k1 > 0:
@@ -533,43 +568,86 @@ def to_opencv(camera: FisheyeCamera) -> tuple[np.ndarray, np.ndarray]:
     return K, c[1:] / k1
 
 
-def from_camera_info(info: Mapping[str, Any] | Any) -> FisheyeCamera:
+#: ROS ``CameraInfo.distortion_model`` -> (model of `from_opencv`, accepted numbers of coefficients).
+#: ROS's "equidistant" is OpenCV's fisheye (Kannala-Brandt) model, not the `EquidistantCamera`.
+ROS_MODELS = {"plumb_bob": ("pinhole", (0, 4, 5)), "rational_polynomial": ("pinhole", (8,)),
+              "equidistant": ("fisheye", (4,))}
+
+
+def from_camera_info(info: Mapping[str, Any] | Any, name: str = "") -> Camera:
     """Camera from ROS ``sensor_msgs/CameraInfo`` fields (a mapping or an object with attributes).
 
-    Requires ``distortion_model == "equidistant"`` (ROS name of the OpenCV fisheye model),
-    ``D = [d1..d4]``, ``K`` (9, row-major), ``width``, ``height``. ``R`` must be identity and
-    ``P`` (12) is ignored on input (it describes the rectified image).
+    ``distortion_model``: "plumb_bob" (D = [k1, k2, p1, p2, k3]) or "rational_polynomial" (8
+    coefficients) -> `PinholeCamera`; "equidistant" (ROS's name of the OpenCV fisheye model,
+    D = [d1..d4]) -> `FisheyeCamera`. ``K`` (9, row-major), ``width``, ``height``. ``R`` must be
+    identity and ``P`` (12) is ignored on input (it describes the rectified image).
     """
     get = (lambda n: info[n]) if isinstance(info, Mapping) else (lambda n: getattr(info, n))
     try:
         model = str(get("distortion_model"))
-        D = np.asarray(get("D") if _has(info, "D") else get("d"), dtype=float)
+        D = np.asarray(get("D") if _has(info, "D") else get("d"), dtype=float).ravel()
         K = np.asarray(get("K") if _has(info, "K") else get("k"), dtype=float).reshape(3, 3)
         width, height = int(get("width")), int(get("height"))
     except (KeyError, AttributeError) as exc:
         raise ValueError(f"from_camera_info: missing CameraInfo field {exc}") from None
-    if model != "equidistant":
+    if model not in ROS_MODELS:
         raise ValueError(f"from_camera_info: distortion_model {model!r} is not supported; "
-                         f"expected 'equidistant'")
+                         f"expected one of {sorted(ROS_MODELS)}")
+    kind, sizes = ROS_MODELS[model]
+    if D.size not in sizes:
+        raise ValueError(f"from_camera_info: distortion_model {model!r} takes {' or '.join(map(str, sizes))} "
+                         f"distortion coefficients D, got {D.size}")
     if _has(info, "R") or _has(info, "r"):
         R = np.asarray(get("R") if _has(info, "R") else get("r"), dtype=float)
         if R.size == 9 and np.any(R) and not np.allclose(R.reshape(3, 3), np.eye(3)):
             raise ValueError("from_camera_info: R must be identity (monocular camera)")
-    return from_opencv(K, D, width, height)
+    return from_opencv(K, D, width, height, name=name, model=kind)
 
 
 def _has(info: Any, name: str) -> bool:
     return name in info if isinstance(info, Mapping) else hasattr(info, name)
 
 
-def to_camera_info(camera: FisheyeCamera) -> dict[str, Any]:
-    """ROS ``sensor_msgs/CameraInfo`` fields: width, height, distortion_model "equidistant",
-    D = [d1..d4], K (9), R = identity (9), P = [K | 0] (12), as plain lists."""
+def to_camera_info(camera: Camera) -> dict[str, Any]:
+    """ROS ``sensor_msgs/CameraInfo`` fields: width, height, distortion_model ("equidistant" for a
+    fisheye, "plumb_bob" or "rational_polynomial" for a pinhole), D, K (9), R = identity (9),
+    P = [K | 0] (12), as plain lists."""
     K, D = to_opencv(camera)
+    if isinstance(camera, PinholeCamera):
+        model = "rational_polynomial" if D.size == 8 else "plumb_bob"
+        D = np.concatenate([D, np.zeros(5 - D.size)]) if D.size < 5 else D
+    else:
+        model = "equidistant"
     P = np.hstack([K, np.zeros((3, 1))])
-    return {"width": camera.width, "height": camera.height, "distortion_model": "equidistant",
+    return {"width": camera.width, "height": camera.height, "distortion_model": model,
             "D": D.tolist(), "K": K.ravel().tolist(), "R": np.eye(3).ravel().tolist(),
             "P": P.ravel().tolist()}
+
+
+def fov_deg(camera: Camera) -> tuple[float, float, float]:
+    """(horizontal, vertical, diagonal) field of view [deg]: the sum of the angles off the optical
+    axis of the rays through two opposite image edges (pixel edges) on the principal point's row
+    (horizontal) and column (vertical), and through opposite corners (diagonal: the larger of the
+    two diagonals). For a centred camera this is the FOV of `from_fov`."""
+    w, h, cx, cy = camera.width - 0.5, camera.height - 0.5, camera.cx, camera.cy
+    uv = np.array([[-0.5, cy], [w, cy], [cx, -0.5], [cx, h], [-0.5, -0.5], [w, h], [w, -0.5], [-0.5, h]])
+    th = np.degrees(np.arccos(np.clip(unproject(camera, uv)[:, 2], -1.0, 1.0)))
+    return float(th[0] + th[1]), float(th[2] + th[3]), float(max(th[4] + th[5], th[6] + th[7]))
+
+
+def describe(camera: Camera) -> str:
+    """One line: model, size, focal lengths and field of view (printed where the CLI loads a camera)."""
+    hf, vf, df = fov_deg(camera)
+    label = f"{camera.name} " if camera.name else ""
+    return (f"camera {label}({camera.model}, {camera.width}x{camera.height} px, fx {camera.fx:.2f} px): "
+            f"FOV {hf:.2f} deg horizontal, {vf:.2f} deg vertical, {df:.2f} deg diagonal")
+
+
+def check_camera(camera: Any, where: str = "camera") -> None:
+    """ValueError unless ``camera`` is one of the camera models (`CAMERA_TYPES`)."""
+    if not isinstance(camera, CAMERA_TYPES):
+        raise ValueError(f"{where}: {type(camera).__name__}, expected a vision.camera model "
+                         f"(FisheyeCamera, EquidistantCamera or PinholeCamera)")
 
 
 def from_fov(width: int, height: int, fov_deg: float, k_shape: Sequence[float] = (1.0,),
@@ -624,71 +702,98 @@ def atek_camera() -> FisheyeCamera:
 # dict form (camera files; the file I/O is in scenarios/config/camera.py)
 
 _DICT_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "model", "k", "opencv_D", "name"}
+#: TOML ``model`` values -> class; "fisheye-odd-poly" is an older name of "fisheye".
+MODELS = {"fisheye": "FisheyeCamera", MODEL_NAME_LEGACY: "FisheyeCamera", "pinhole": "PinholeCamera",
+          "equidistant": "EquidistantCamera"}
 
 
-def camera_from_dict(d: Mapping[str, Any], where: str = "camera") -> FisheyeCamera:
+def _dict_number(d: Mapping[str, Any], key: str, where: str, integer: bool = False):
+    if key not in d:
+        raise ValueError(f"{where}: missing key {key!r} ({'positive integer' if integer else 'number'}, pixels)")
+    v = d[key]
+    if integer:
+        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
+            raise ValueError(f"{where}: key {key!r} = {v!r}; expected a positive integer")
+        return v
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{where}: key {key!r} = {v!r}; expected a finite number")
+    return float(v)
+
+
+def _dict_coefficients(d: Mapping[str, Any], model: str, where: str) -> tuple[float, ...]:
+    """The distortion coefficients of a [camera] table, as the model's constructor takes them."""
+    allowed = {"fisheye": ("k", "opencv_D"), "pinhole": ("opencv_D",), "equidistant": ()}[model]
+    for key in ("k", "opencv_D"):
+        if key in d and key not in allowed:
+            raise ValueError(f"{where}: key {key!r} does not apply to model {model!r}; expected "
+                             f"{' or '.join(repr(a) for a in allowed) or 'no distortion coefficients'}")
+    given = [key for key in allowed if key in d]
+    if model == "equidistant":
+        return (1.0,)
+    if model == "fisheye" and len(given) != 1:
+        raise ValueError(f"{where}: give exactly one of 'k' = [k1..k5] or 'opencv_D' = [d1..d4]")
+    if not given:
+        return ()
+    key = given[0]
+    seq = d[key]
+    if (not isinstance(seq, (list, tuple)) or
+            not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in seq)):
+        raise ValueError(f"{where}: key {key!r} = {seq!r}; expected a list of numbers")
+    sizes = {"k": range(1, 6), "opencv_D": (4,) if model == "fisheye" else (4, 5, 8)}[key]
+    if len(seq) not in sizes:
+        what = {"k": "1 to 5 [k1..k5]", "opencv_D": "4 [d1..d4]" if model == "fisheye" else
+                "4, 5 or 8 [k1, k2, p1, p2[, k3[, k4, k5, k6]]]"}[key]
+        raise ValueError(f"{where}: key {key!r} has {len(seq)} entries; expected {what}")
+    c = tuple(float(x) for x in seq)
+    return (1.0, *c) if (model == "fisheye" and key == "opencv_D") else c
+
+
+def camera_from_dict(d: Mapping[str, Any], where: str = "camera") -> Camera:
     """Camera from the [camera] table of a camera file.
 
-    Keys: width, height, fx, fy, cx, cy (numbers), model = "fisheye-odd-poly" (optional, the only
-    model), and exactly one of k = [k1..k5] (003 eq. (13)) or opencv_D = [d1..d4] (OpenCV fisheye,
-    meaning k = [1, d1..d4]); optional name. ``where`` prefixes error messages (e.g. the file
-    name): errors name the key and the expected value.
+    Keys: width, height, fx, fy, cx, cy (numbers); ``model`` = "fisheye" (default when absent;
+    "fisheye-odd-poly" is accepted), "pinhole" or "equidistant"; for the fisheye exactly one of
+    k = [k1..k5] (003 eq. (13)) or opencv_D = [d1..d4] (OpenCV fisheye, meaning k = [1, d1..d4]);
+    for the pinhole optionally opencv_D = [k1, k2, p1, p2[, k3[, k4, k5, k6]]]; for the
+    equidistant model (r = f theta, the fisheye with k = [1]) none; optional name. ``where``
+    prefixes error messages (e.g. the file name): errors name the key and the expected value.
     """
     if not isinstance(d, Mapping):
         raise ValueError(f"{where}: expected a table of camera parameters, got {type(d).__name__}")
     unknown = set(d) - _DICT_KEYS
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}; expected {sorted(_DICT_KEYS)}")
-    model = d.get("model", MODEL_NAME)
-    if model != MODEL_NAME:
-        raise ValueError(f"{where}: key 'model' = {model!r}; expected {MODEL_NAME!r}")
-    vals: dict[str, Any] = {}
-    for key in ("width", "height"):
-        if key not in d:
-            raise ValueError(f"{where}: missing key {key!r} (positive integer, pixels)")
-        v = d[key]
-        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-            raise ValueError(f"{where}: key {key!r} = {v!r}; expected a positive integer")
-        vals[key] = v
-    for key in ("fx", "fy", "cx", "cy"):
-        if key not in d:
-            raise ValueError(f"{where}: missing key {key!r} (number, pixels)")
-        v = d[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f"{where}: key {key!r} = {v!r}; expected a finite number")
-        vals[key] = float(v)
-    has_k, has_d = "k" in d, "opencv_D" in d
-    if has_k == has_d:
-        raise ValueError(f"{where}: give exactly one of 'k' = [k1..k5] or 'opencv_D' = [d1..d4]")
-    key = "k" if has_k else "opencv_D"
-    seq = d[key]
-    if (not isinstance(seq, (list, tuple)) or
-            not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in seq)):
-        raise ValueError(f"{where}: key {key!r} = {seq!r}; expected a list of numbers")
-    if has_k:
-        if not 1 <= len(seq) <= 5:
-            raise ValueError(f"{where}: key 'k' has {len(seq)} entries; expected 1 to 5 [k1..k5]")
-        k = tuple(float(c) for c in seq)
-    else:
-        if len(seq) != 4:
-            raise ValueError(f"{where}: key 'opencv_D' has {len(seq)} entries; expected 4 [d1..d4]")
-        k = (1.0, *(float(c) for c in seq))
+    model = d.get("model", "fisheye")
+    if model not in MODELS:
+        raise ValueError(f"{where}: key 'model' = {model!r}; expected 'pinhole', 'fisheye' or 'equidistant'")
+    model = "fisheye" if model == MODEL_NAME_LEGACY else model
+    vals = {key: _dict_number(d, key, where, key in ("width", "height"))
+            for key in ("width", "height", "fx", "fy", "cx", "cy")}
+    coeffs = _dict_coefficients(d, model, where)
     name = d.get("name", "")
     if not isinstance(name, str):
         raise ValueError(f"{where}: key 'name' = {name!r}; expected a string")
+    cls = {"fisheye": FisheyeCamera, "pinhole": PinholeCamera, "equidistant": EquidistantCamera}[model]
     try:
-        return FisheyeCamera(vals["width"], vals["height"], vals["fx"], vals["fy"], vals["cx"],
-                             vals["cy"], k, name=name)
+        return cls(vals["width"], vals["height"], vals["fx"], vals["fy"], vals["cx"], vals["cy"], coeffs,
+                   name=name)
     except ValueError as exc:
-        raise ValueError(f"{where}: {exc}") from None
+        msg = str(exc)
+        if "dist =" in msg or "k =" in msg or "polynomial" in msg:
+            msg = f"key {'opencv_D' if model == 'pinhole' else 'k'}: {msg}"
+        raise ValueError(f"{where}: {msg}") from None
 
 
-def camera_to_dict(camera: FisheyeCamera) -> dict[str, Any]:
-    """The [camera] table for `camera_from_dict` (k written as given, with model name)."""
+def camera_to_dict(camera: Camera) -> dict[str, Any]:
+    """The [camera] table for `camera_from_dict` (coefficients written as given, with the model)."""
     out: dict[str, Any] = {}
     if camera.name:
         out["name"] = camera.name
-    out.update({"model": MODEL_NAME, "width": camera.width, "height": camera.height,
-                "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
-                "k": list(camera.k)})
+    out.update({"model": camera.model, "width": camera.width, "height": camera.height,
+                "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy})
+    if isinstance(camera, PinholeCamera):
+        if camera.dist:
+            out["opencv_D"] = list(camera.dist)
+    elif camera.model == "fisheye":
+        out["k"] = list(camera.k)
     return out

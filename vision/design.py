@@ -96,7 +96,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from nav import earth
-from vision.camera import FisheyeCamera, from_fov, project, unproject_jacobian
+from vision.camera import Camera, FisheyeCamera, from_fov, project, unproject_jacobian
 from vision.covariance import ar1_toeplitz_apply, direction_covariance
 from vision.error_model import camera_keep, trace_limb
 
@@ -226,7 +226,8 @@ class SensitivityCase:
     R_px2 [px^2], L_px [px], aspect = width/height of the pinhole sensor, fov_axis = the side
     the FOV spans ("vertical": the ``resolution`` px; "horizontal": the width), step_px [px] spacing of
     the horizon samples, form ("003", "linear" or "constrained"), radius [m] of the sphere.
-    ``camera``: a fisheye camera to use instead of the pinhole (then fov_deg is its horizontal FOV
+    ``camera``: a camera model (fisheye or camera-file pinhole) to use instead of the ideal pinhole
+    (then fov_deg is its horizontal FOV
     and resolution its height; both rescale it; form must be "linear" or "constrained").
     ``mounting``: "side" (camera perpendicular to the roll axis, 003 §4 / ATEK) or "forward"
     (camera along the roll axis); see the module docstring.
@@ -243,7 +244,7 @@ class SensitivityCase:
     step_px: float = 1.0
     form: str = "003"
     radius: float = earth.R_MEAN
-    camera: FisheyeCamera | None = None
+    camera: Camera | None = None
     mounting: str = "side"
 
     def __post_init__(self):
@@ -251,12 +252,20 @@ class SensitivityCase:
             raise ValueError(f"mounting = {self.mounting!r}; expected one of {sorted(R_NC_MOUNTING)}")
 
 
-def _fisheye_for(case: SensitivityCase) -> FisheyeCamera:
+def _camera_for(case: SensitivityCase) -> Camera:
+    """``case.camera`` rescaled to ``case.resolution`` rows and ``case.fov_deg`` horizontally: a
+    fisheye through `from_fov` with its distortion shape; a camera-file pinhole (`vision.pinhole`)
+    with its distortion coefficients, the pixel grid scaled and the focal length set by
+    tan(FOV/2) as for an undistorted pinhole."""
     cam = case.camera
     s = case.resolution / cam.height
     w = int(round(cam.width * s))
-    return from_fov(w, int(case.resolution), case.fov_deg, k_shape=cam.k, axis="horizontal",
-                    name=cam.name)
+    if isinstance(cam, FisheyeCamera):
+        return from_fov(w, int(case.resolution), case.fov_deg, k_shape=cam.k, axis="horizontal",
+                        name=cam.name)
+    f = (w / 2.0) / math.tan(math.radians(case.fov_deg) / 2.0)
+    return type(cam)(w, int(case.resolution), f, f * cam.fy / cam.fx, (cam.cx + 0.5) * s - 0.5,
+                     (cam.cy + 0.5) * s - 0.5, cam.dist, name=cam.name)
 
 
 def horizon_points(case: SensitivityCase, e_c: np.ndarray | None = None):
@@ -270,7 +279,7 @@ def horizon_points(case: SensitivityCase, e_c: np.ndarray | None = None):
         cam = PinholeCamera.from_fov(case.resolution, case.fov_deg, case.aspect, case.fov_axis)
         arcs = trace_limb(e, alpha, cam.project, cam.keep, case.step_px)
     else:
-        cam = _fisheye_for(case)
+        cam = _camera_for(case)
         arcs = trace_limb(e, alpha, lambda r: project(cam, r), camera_keep(cam, None), case.step_px)
     uv = arcs[0][0] if arcs else np.zeros((0, 2))
     return uv, cam, alpha
@@ -321,8 +330,8 @@ def roll_pitch_sigma(case: SensitivityCase) -> tuple[float, float, int]:
             P = direction_covariance(h, J, e, case.R_px2, case.L_px, method=case.form).P_c
     else:
         if case.form == "003":
-            raise ValueError("form '003' (eq. (22)-(24) on z = f image points) needs the pinhole "
-                             "camera; with a fisheye camera file use form 'linear' or 'constrained'")
+            raise ValueError("form '003' (eq. (22)-(24) on z = f image points) needs the ideal pinhole "
+                             "camera; with a camera file use form 'linear' or 'constrained'")
         rays, J = unproject_jacobian(cam, uv)
         P = direction_covariance(rays, J, e, case.R_px2, case.L_px, method=case.form).P_c
     R_nc = R_NC_MOUNTING[case.mounting]

@@ -34,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from vision.camera import FisheyeCamera, project, unproject_jacobian
+from vision.camera import Camera, project, unproject_jacobian
 from vision.covariance import DirectionCovariance, direction_covariance, tangent_basis
 from vision.nadir import conic_type
 
@@ -171,7 +171,7 @@ def trace_limb(e_c: np.ndarray, alpha: float, project_fn: Callable[[np.ndarray],
     return out
 
 
-def camera_keep(camera: FisheyeCamera, mask: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
+def camera_keep(camera: Camera, mask: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
     """Test of pixels (k, 2): inside the image and, with a payload ``mask`` (H, W; True =
     payload), off the mask."""
     if mask is not None:
@@ -197,14 +197,14 @@ def camera_keep(camera: FisheyeCamera, mask: np.ndarray | None) -> Callable[[np.
     return keep
 
 
-def predicted_limb_pixels(camera: FisheyeCamera, e_c: np.ndarray, alpha: float,
+def predicted_limb_pixels(camera: Camera, e_c: np.ndarray, alpha: float,
                           mask: np.ndarray | None = None, step_px: float = 1.0,
                           arcs: str = "longest") -> np.ndarray | list[np.ndarray]:
     """Visible limb of the body (e_c, alpha) in distorted pixels (u, v), ordered along the curve.
 
     Parameters
     ----------
-    camera : the camera model (`vision.camera.FisheyeCamera`).
+    camera : the camera model (any `vision.camera` model).
     e_c : (3,) body direction in the camera frame (Earth nadir or Sun), any length.
     alpha : cone half-angle [rad] (003 eq. (5); `bloomed_alpha` for the Sun/Moon).
     mask : optional bool (height, width), True where the payload hides the view (003 §3.1: "the
@@ -260,7 +260,7 @@ class VisionPrediction:
     method: str
 
 
-def predict_vision(camera: FisheyeCamera, e_c: np.ndarray, alpha: float,
+def predict_vision(camera: Camera, e_c: np.ndarray, alpha: float,
                    R_px2: float = HORIZON_NOISE[0], L_px: float = HORIZON_NOISE[1],
                    mask: np.ndarray | None = None, step_px: float = 1.0,
                    method: str = "constrained", min_pixels: int = 30) -> VisionPrediction:
@@ -320,7 +320,7 @@ def predict_vision(camera: FisheyeCamera, e_c: np.ndarray, alpha: float,
     return VisionPrediction(uv, cov, "", len(found), kind, method)
 
 
-def predicted_covariance(camera: FisheyeCamera, e_c: np.ndarray, alpha: float,
+def predicted_covariance(camera: Camera, e_c: np.ndarray, alpha: float,
                          R_px2: float = HORIZON_NOISE[0], L_px: float = HORIZON_NOISE[1],
                          mask: np.ndarray | None = None, step_px: float = 1.0,
                          method: str = "constrained", min_pixels: int = 30) -> DirectionCovariance | None:

@@ -59,7 +59,7 @@ import time
 import numpy as np
 
 from vision.binarize import as_frame, brightness_histogram
-from vision.camera import FisheyeCamera, unproject, unproject_jacobian
+from vision.camera import Camera, check_camera, unproject, unproject_jacobian
 from vision.candidates import detect
 from vision.config import (TARGETS, FramePrior, TargetConfig, VisionConfig, default_config,
                            resolve_search_lines)
@@ -355,7 +355,7 @@ def _predicted(name: str, prior: FramePrior | None):
     return pred / np.linalg.norm(pred)
 
 
-def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_m: float | None = None,
+def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: float | None = None,
                   mask: PayloadMask | None = None, prior: FramePrior | None = None,
                   rng: np.random.Generator | None = None, t_ns: int = 0, camera_id: int = 0,
                   baseline: bool = False) -> FrameResult:
@@ -364,7 +364,7 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
     Parameters
     ----------
     image : (H, W, 3) or (H, W) uint8 frame as decoded (distorted); its size must be the camera's.
-    camera : intrinsics (`vision.camera.FisheyeCamera`).
+    camera : intrinsics, any `vision.camera` model (fisheye, equidistant, pinhole).
     config : `VisionConfig`; search lines given by ``alpha_min_deg`` only are spaced for this
         camera (`vision.config.resolve_search_lines`).
     height_m : height above the ellipsoid [m] (the height prior of 003 eq. (5)); needed for the
@@ -381,8 +381,7 @@ def process_frame(image, camera: FisheyeCamera, config: VisionConfig, *, height_
     FrameResult; ``reasons[target]`` says why a target has no vector. Bad input (not a uint8
     frame, wrong size, bad mask) raises ValueError.
     """
-    if not isinstance(camera, FisheyeCamera):
-        raise ValueError(f"camera: {type(camera).__name__}, expected vision.camera.FisheyeCamera")
+    check_camera(camera)
     if not isinstance(image, np.ndarray):
         raise ValueError(f"image: {type(image).__name__}, expected a decoded uint8 numpy array "
                          f"(decode bytes with cv2.imdecode first)")

@@ -10,7 +10,7 @@ import numba
 import numpy as np
 
 from vision.borders import SearchConfig, search_rows
-from vision.camera import FisheyeCamera, project
+from vision.camera import Camera, FisheyeCamera, project
 from vision.covariance import tangent_basis
 from vision.nadir import norm3
 from vision.oblate import LimbModel
@@ -20,7 +20,7 @@ __all__ = ["conic_polyline", "unit_circle", "gate_search_rows", "in_image", "fas
            "max_pixel_angle", "pixel_angle_table", "conic_passes_image"]
 
 
-def conic_polyline(camera: FisheyeCamera, e_c: np.ndarray, alpha: float, n: int = 720,
+def conic_polyline(camera: Camera, e_c: np.ndarray, alpha: float, n: int = 720,
                    model: LimbModel | None = None) -> np.ndarray:
     """Pixels (k, 2) of the cone (e, alpha) projected through the distorted camera model (the
     fitted conic drawn in distorted pixel space, 003 figs. 15, 27); NaN where a ray is beyond the
@@ -45,7 +45,7 @@ def unit_circle(n: int, endpoint: bool = True) -> np.ndarray:
     return c
 
 
-def gate_search_rows(camera: FisheyeCamera, predicted: np.ndarray, angle: float,
+def gate_search_rows(camera: Camera, predicted: np.ndarray, angle: float,
                      search: SearchConfig) -> np.ndarray | None:
     """The rows of ``search``'s raster (003 §5) that can meet a body whose whole disc lies within
     ``angle`` [rad] of the ``predicted`` unit direction (gate + largest apparent radius): those
@@ -69,7 +69,7 @@ def gate_search_rows(camera: FisheyeCamera, predicted: np.ndarray, angle: float,
     return rows[(rows >= v.min() - 2.0) & (rows <= v.max() + 2.0)]
 
 
-def in_image(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
+def in_image(camera: Camera, uv: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         return (np.isfinite(uv).all(axis=-1) & (uv[..., 0] >= -0.5) & (uv[..., 0] <= camera.width - 0.5)
                 & (uv[..., 1] >= -0.5) & (uv[..., 1] <= camera.height - 0.5))
@@ -78,12 +78,15 @@ def in_image(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
 _PIXEL_ANGLE_CACHE: dict = {}
 
 
-def fast_pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
+def fast_pixel_angle(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """`vision.ransac.pixel_angle` through a per-camera table over the distorted radius (the exact
     function is evaluated once per camera on 256 radii; linear interpolation between them, as
-    ``np.interp`` on the table, `_interp_uniform`)."""
-    q, pa, _ = pixel_angle_table(camera)
+    ``np.interp`` on the table, `_interp_uniform`). Models without radial symmetry (the pinhole
+    with tangential distortion or fx != fy): the exact function."""
     uv = np.asarray(uv, dtype=float)
+    if not isinstance(camera, FisheyeCamera):
+        return pixel_angle(camera, uv)
+    q, pa, _ = pixel_angle_table(camera)
     out = _interp_uniform(np.ascontiguousarray(uv.reshape(-1, 2)), camera.cx, camera.cy, camera.fx, camera.fy,
                           q[-1] / (q.size - 1), pa)
     return out.reshape(uv.shape[:-1])
@@ -107,17 +110,24 @@ def _interp_uniform(uv, cx, cy, fx, fy, dq, tab):  # pragma: no cover - numba
     return out
 
 
-def max_pixel_angle(camera: FisheyeCamera) -> float:
+def max_pixel_angle(camera: Camera) -> float:
     """The largest `fast_pixel_angle` in the image (its table's largest entry: interpolation between
     entries cannot exceed it)."""
     return pixel_angle_table(camera)[2]
 
 
-def pixel_angle_table(camera: FisheyeCamera):
-    """(radii, pixel angles, largest pixel angle) of `fast_pixel_angle`, cached per camera."""
-    key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.k))
+def pixel_angle_table(camera: Camera):
+    """(radii, pixel angles, largest pixel angle) of `fast_pixel_angle`, cached per camera. For
+    models other than the fisheye the radii and angles are None and the largest angle is taken
+    over a 65x65 grid of the image (pixel edges included)."""
+    key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.k)) \
+        if isinstance(camera, FisheyeCamera) else camera
     tab = _PIXEL_ANGLE_CACHE.get(key)
-    if tab is None:
+    if tab is None and not isinstance(camera, FisheyeCamera):
+        gv, gu = np.meshgrid(np.linspace(-0.5, camera.height - 0.5, 65), np.linspace(-0.5, camera.width - 0.5, 65))
+        tab = (None, None, float(np.max(pixel_angle(camera, np.stack([gu, gv], axis=-1)))))
+        _PIXEL_ANGLE_CACHE[key] = tab
+    elif tab is None:
         corners = np.array([[-0.5, -0.5], [camera.width - 0.5, camera.height - 0.5],
                             [-0.5, camera.height - 0.5], [camera.width - 0.5, -0.5]])
         rmax = float(np.max(np.hypot((corners[:, 0] - camera.cx) / camera.fx,
@@ -132,7 +142,7 @@ def pixel_angle_table(camera: FisheyeCamera):
 
 
 
-def conic_passes_image(camera: FisheyeCamera, e_fit: np.ndarray, alpha: float, model: LimbModel | None,
+def conic_passes_image(camera: Camera, e_fit: np.ndarray, alpha: float, model: LimbModel | None,
                         H_inl: np.ndarray) -> bool:
     """003 §3.3 sanity check: does the cone (e_fit, alpha) of the fit frame project into the image?
 

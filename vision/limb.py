@@ -79,7 +79,7 @@ import numba
 import numpy as np
 
 from nav import earth as _earth
-from vision.camera import FisheyeCamera, project, unproject, unproject_jacobian
+from vision.camera import Camera, project, unproject, unproject_jacobian
 from vision.nadir import per_ray
 
 _EARTH_A, _EARTH_B = _earth.A, _earth.B
@@ -459,7 +459,7 @@ def _turn_kernel(rays, e, a, out):
         out[i, 0], out[i, 1], out[i, 2] = _turn1(rays[i, 0], rays[i, 1], rays[i, 2], e, a[i])
 
 
-def _profile_normals(camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray, e_c: np.ndarray,
+def _profile_normals(camera: Camera, uv: np.ndarray, rays_c: np.ndarray, e_c: np.ndarray,
                      pixel_angle: np.ndarray) -> np.ndarray:
     """(m, 2) unit image directions of the limb profiles: from each edge pixel towards the body
     e_c (the image of the ray turned by one pixel angle towards it)."""
@@ -478,7 +478,7 @@ def _unit_differences(q, p):  # pragma: no cover - numba
     return out
 
 
-def limb_edge_points(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray,
+def limb_edge_points(image: np.ndarray, camera: Camera, uv: np.ndarray, rays_c: np.ndarray,
                      e_c: np.ndarray, pixel_angle: np.ndarray, config: LimbEdgeConfig,
                      jacobian: bool = False, phase_slope: np.ndarray | None = None):
     """Move threshold-edge pixels to the fraction-of-peak crossing of the limb profile.
@@ -970,7 +970,7 @@ def _flank_search(L, w, E, Q, hmin, ph, n, A, H):
     return h0, f, K
 
 
-def flank_heights(image: np.ndarray, camera: FisheyeCamera, uv: np.ndarray, rays_c: np.ndarray,
+def flank_heights(image: np.ndarray, camera: Camera, uv: np.ndarray, rays_c: np.ndarray,
                   e_c: np.ndarray, pixel_angle: np.ndarray, R_ec: np.ndarray, x_e: np.ndarray,
                   sun_e: np.ndarray, config: LimbEdgeConfig, *, height_m: float = 18300.0,
                   scale_height_m: float = 8000.0, space_px: int = 15, min_samples: int = 15,

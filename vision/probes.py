@@ -31,8 +31,7 @@ def side_score(image, camera, mask, threshold, rays_c, uv, e_c, alpha_c_space, s
     img = image if image.ndim == 3 else image[:, :, None]
     m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
     good, total = _side_kernel(img, m, float(threshold), np.ascontiguousarray(rays_c), e, step_px * pa,
-                               float(alpha_c_space), camera.fx, camera.fy, camera.cx, camera.cy,
-                               np.asarray(camera.k), camera.max_theta)
+                               float(alpha_c_space), *camera.kernel_params())
     return good / total if total else math.nan
 
 
@@ -61,7 +60,7 @@ def _probe_brightness(img, mask, u, v):
 
 
 @numba.njit(cache=True)
-def _side_kernel(img, mask, threshold, rays, e, ang, alpha, fx, fy, cx, cy, k, max_theta):
+def _side_kernel(img, mask, threshold, rays, e, ang, alpha, model, prm):
     """Probes of `side_score`: each ray turned by ang_j towards e and away from it (tangent
     ``t = e - (p.e) p`` normalised; rays with |t| <= 1e-9 skipped), projected, looked up
     (`_probe_brightness`); a bright probe (>= threshold) agrees when its angle from e is below
@@ -80,7 +79,7 @@ def _side_kernel(img, mask, threshold, rays, e, ang, alpha, fx, fy, cx, cy, k, m
             qx = ca * px + sa * (tx / tn)
             qy = ca * py + sa * (ty / tn)
             qz = ca * pz + sa * (tz / tn)
-            u, v = project1(qx, qy, qz, fx, fy, cx, cy, k, max_theta)
+            u, v = project1(qx, qy, qz, model, prm)
             b = _probe_brightness(img, mask, u, v)
             if b < 0.0:
                 continue
@@ -108,8 +107,7 @@ def disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16)
     m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
     n_in, dark_in, n_out, dark_out = _disc_kernel(
         img, m, float(threshold), np.asarray(e_c, dtype=float), T, unit_circle(n, False),
-        0.5 * alpha, alpha + step_px * pa, camera.fx, camera.fy, camera.cx, camera.cy, np.asarray(camera.k),
-        camera.max_theta)
+        0.5 * alpha, alpha + step_px * pa, *camera.kernel_params())
     if n_in < 0.75 * n:
         return f"disc centre too close to the image edge or mask ({n_in}/{n} inner probes visible)"
     if dark_in:
@@ -120,7 +118,7 @@ def disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16)
 
 
 @numba.njit(cache=True)
-def _disc_kernel(img, mask, threshold, e, T, cs, ang_in, ang_out, fx, fy, cx, cy, k, max_theta):
+def _disc_kernel(img, mask, threshold, e, T, cs, ang_in, ang_out, model, prm):
     """Rings of `disc_check`: ``cos(ang) e + sin(ang) (cos psi t1 + sin psi t2)`` for the inner and
     the outer angle, projected and looked up (`_probe_brightness`). Returns (inner probes usable,
     of them below threshold, outer probes usable, of them below threshold)."""
@@ -133,8 +131,7 @@ def _disc_kernel(img, mask, threshold, e, T, cs, ang_in, ang_out, fx, fy, cx, cy
             rx = c * T[0, 0] + s * T[0, 1]
             ry = c * T[1, 0] + s * T[1, 1]
             rz = c * T[2, 0] + s * T[2, 1]
-            u, v = project1(ca * e[0] + sa * rx, ca * e[1] + sa * ry, ca * e[2] + sa * rz,
-                             fx, fy, cx, cy, k, max_theta)
+            u, v = project1(ca * e[0] + sa * rx, ca * e[1] + sa * ry, ca * e[2] + sa * rz, model, prm)
             b = _probe_brightness(img, mask, u, v)
             if b < 0.0:
                 continue

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from vision.camera import FisheyeCamera, inverse_radial, radial_derivative, radial_distance
+from vision.camera import Camera, FisheyeCamera, inverse_radial, radial_derivative, radial_distance, unproject_jacobian
 from vision.nadir import ConeFit, check_rays, direction_and_radius, nadir_from_horizon, per_ray, within_cone
 
 __all__ = ["RansacResult", "ransac_cone", "pixel_angle"]
@@ -45,11 +45,21 @@ class RansacResult:
     n_scored: int
 
 
-def pixel_angle(camera: FisheyeCamera, uv: np.ndarray) -> np.ndarray:
-    """Largest angle one pixel subtends at each pixel [rad]: the larger of the radial
-    1/(f dr_d/dtheta) and the tangential sin(theta)/(f r_d), with f = min(fx, fy).
-    Converts a pixel threshold into a per-ray angle threshold."""
+def pixel_angle(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """Largest angle one pixel subtends at each pixel [rad]. Converts a pixel threshold into a
+    per-ray angle threshold.
+
+    Fisheye (closed form): the larger of the radial 1/(f dr_d/dtheta) and the tangential
+    sin(theta)/(f r_d), with f = min(fx, fy). Other models: the largest singular value of the
+    unproject Jacobian J = d ray / d(u, v), sqrt of the larger eigenvalue of J^T J (for the fisheye
+    with fx = fy the two agree)."""
     uv = np.asarray(uv, dtype=float)
+    if not isinstance(camera, FisheyeCamera):
+        _, J = unproject_jacobian(camera, uv)
+        a = np.sum(J[..., 0] ** 2, axis=-1)
+        c = np.sum(J[..., 1] ** 2, axis=-1)
+        b = np.sum(J[..., 0] * J[..., 1], axis=-1)
+        return np.sqrt(0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b))
     q = np.hypot((uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy)
     th = inverse_radial(camera, q)
     f = min(camera.fx, camera.fy)

@@ -150,9 +150,9 @@ def run_visibility(out: Path, camera=None) -> list[Path]:
 
 
 def _camera_hfov(camera) -> float:
-    from vision.camera import inverse_radial
+    from vision.camera import fov_deg
 
-    return 2 * math.degrees(float(inverse_radial(camera, np.array(camera.width / 2 / camera.fx))))
+    return fov_deg(camera)[0]
 
 
 def run_spherical_error(out: Path) -> list[Path]:
@@ -199,7 +199,7 @@ def run_sensitivity(out: Path, params: list[str], camera=None, form: str = "auto
     if camera is not None:
         base = replace(base, fov_deg=_camera_hfov(camera), resolution=camera.height)
     where = (f"pinhole {round(aspect * base.resolution)}x{base.resolution} px, FOV across the "
-             f"{fov_axis} side" if camera is None else f"camera {camera.name or 'file'} (fisheye)")
+             f"{fov_axis} side" if camera is None else f"camera {camera.name or 'file'} ({camera.model})")
     where += f", {mounting}-looking"
     files = []
     for param in params:

@@ -1,8 +1,11 @@
-"""``horizon-nav calibrate``: fisheye intrinsics from chessboard images (``cv2.fisheye.calibrate``)
-written as a camera file (scenarios/config/camera.py).
+"""``horizon-nav calibrate``: camera intrinsics from chessboard images, written as a camera file
+(scenarios/config/camera.py).
 
-The OpenCV fisheye model theta_d = theta (1 + d1 theta^2 + ... + d4 theta^8) is 003 eq. (13)
-with k = [1, d1, .., d4] (`vision.camera.from_opencv`). Corners: ``cv2.findChessboardCorners``
+``--model fisheye`` (default): ``cv2.fisheye.calibrate``; the OpenCV fisheye model
+theta_d = theta (1 + d1 theta^2 + ... + d4 theta^8) is 003 eq. (13) with k = [1, d1, .., d4]
+(`vision.camera.from_opencv`). ``--model pinhole``: ``cv2.calibrateCamera`` with OpenCV's plumb_bob
+distortion [k1, k2, p1, p2, k3], or with ``--rational`` the rational model (8 coefficients), a
+`vision.camera.PinholeCamera`. Corners: ``cv2.findChessboardCorners``
 refined with ``cv2.cornerSubPix``. The RMS reprojection error over all corners and the error of
 each image are reported; images whose board is not found are listed and skipped.
 """
@@ -18,7 +21,7 @@ import numpy as np
 from scenarios.errors import UserError
 
 NAME = "calibrate"
-HELP = "fisheye camera calibration from chessboard images -> camera file (TOML)"
+HELP = "fisheye or pinhole camera calibration from chessboard images -> camera file (TOML)"
 
 
 def add_arguments(p) -> None:
@@ -26,6 +29,11 @@ def add_arguments(p) -> None:
     p.add_argument("--board", default="9x6", help="inner corners per row x per column (default 9x6)")
     p.add_argument("--square", type=float, default=0.025, help="square size [m] (default 0.025)")
     p.add_argument("--name", default="", help="camera name written into the file")
+    p.add_argument("--model", choices=("fisheye", "pinhole"), default="fisheye",
+                   help="camera model: fisheye (OpenCV fisheye / Kannala-Brandt, default) or pinhole "
+                        "(OpenCV plumb_bob k1 k2 p1 p2 k3)")
+    p.add_argument("--rational", action="store_true",
+                   help="pinhole with OpenCV's rational distortion (k1 k2 p1 p2 k3 k4 k5 k6)")
     p.add_argument("-o", "--output", required=True, help="camera file to write (.toml)")
 
 
@@ -59,13 +67,11 @@ def find_corners(gray: np.ndarray, board: tuple[int, int]) -> np.ndarray | None:
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def calibrate_images(images: dict, board: tuple[int, int], square: float, name: str = "") -> Calibration:
-    """Calibrate from ``{label: grey uint8 image}`` (all one size). Raises UserError when fewer than
-    3 boards are found or OpenCV cannot converge."""
-    import cv2
-
-    from vision.camera import from_opencv
-
+def calibrate_images(images: dict, board: tuple[int, int], square: float, name: str = "",
+                     model: str = "fisheye", rational: bool = False) -> Calibration:
+    """Calibrate from ``{label: grey uint8 image}`` (all one size) with the ``model`` ("fisheye" or
+    "pinhole"; ``rational``: the pinhole's 8-coefficient distortion). Raises UserError when fewer
+    than 3 boards are found or OpenCV cannot converge."""
     if not (math.isfinite(square) and square > 0):
         raise UserError(f"--square {square}: expected the square size in metres (> 0)")
     nx, ny = board
@@ -90,26 +96,63 @@ def calibrate_images(images: dict, board: tuple[int, int], square: float, name: 
         raise UserError(f"chessboard {nx}x{ny} found in {len(labels)} of {len(images)} images; "
                         f"need at least 3 (check --board: inner corners, not squares)")
     h, w = shape
+    solve = _solve_pinhole if (model == "pinhole" or rational) else _solve_fisheye
+    rms, cam, per = solve(objp, imgp, (w, h), name, rational)
+    return Calibration(cam, float(rms), dict(zip(labels, per)), skipped)
+
+
+def _solve_fisheye(objp, imgp, size, name, _rational):
+    """cv2.fisheye.calibrate: (RMS, camera, per-image RMS) [px]."""
+    import cv2
+
+    from vision.camera import from_opencv
+
     flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW  # OpenCV 5: fisheye flags live in cv2
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-10)
     try:
-        rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(objp, imgp, (w, h), np.eye(3), np.zeros(4),
+        rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(objp, imgp, size, np.eye(3), np.zeros(4),
                                                         flags=flags, criteria=crit)
     except cv2.error as exc:
         raise UserError(f"cv2.fisheye.calibrate failed ({str(exc).strip().splitlines()[-1]}); "
                         f"add views that cover the image corners") from None
-    per = {}
-    for lab, o, ip, rv, tv in zip(labels, objp, imgp, rvecs, tvecs):
-        proj, _ = cv2.fisheye.projectPoints(o, rv, tv, K, D)
-        per[lab] = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - ip.reshape(-1, 2)) ** 2, axis=1))))
-    cam = from_opencv(K, D.ravel(), w, h, name=name)
-    return Calibration(cam, float(rms), per, skipped)
+    per = [_rms(cv2.fisheye.projectPoints(o, rv, tv, K, D)[0], ip) for o, ip, rv, tv in zip(objp, imgp, rvecs, tvecs)]
+    return rms, from_opencv(K, D.ravel(), size[0], size[1], name=name), per
+
+
+def _solve_pinhole(objp, imgp, size, name, rational):
+    """cv2.calibrateCamera (plumb_bob, or rational with ``rational``): (RMS, camera, per-image RMS)."""
+    import cv2
+
+    from vision.camera import from_opencv
+
+    flags = cv2.CALIB_RATIONAL_MODEL if rational else 0
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    objs = [o.reshape(-1, 3).astype(np.float32) for o in objp]
+    imgs = [ip.reshape(-1, 2).astype(np.float32) for ip in imgp]
+    try:
+        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(objs, imgs, size, None, None, flags=flags, criteria=crit)
+    except cv2.error as exc:
+        raise UserError(f"cv2.calibrateCamera failed ({str(exc).strip().splitlines()[-1]}); "
+                        f"add views that cover the image corners") from None
+    D = D.ravel()[: 8 if rational else 5]
+    per = [_rms(cv2.projectPoints(o, rv, tv, K, D)[0], ip) for o, ip, rv, tv in zip(objs, imgs, rvecs, tvecs)]
+    try:
+        cam = from_opencv(K, D, size[0], size[1], name=name, model="pinhole")
+    except ValueError as exc:
+        raise UserError(f"calibrated pinhole model is not usable: {exc}; add views that cover the image "
+                        f"corners") from None
+    return rms, cam, per
+
+
+def _rms(proj, ip) -> float:
+    return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - ip.reshape(-1, 2)) ** 2, axis=1))))
 
 
 def run(args) -> int:
     import cv2
 
     from scenarios.config.camera import save_camera
+    from vision.camera import describe
 
     board = parse_board(args.board)
     imgs = {}
@@ -124,15 +167,18 @@ def run(args) -> int:
     out = Path(args.output)
     if out.suffix.lower() != ".toml":
         raise UserError(f"-o {args.output}: expected a .toml camera file")
-    cal = calibrate_images(imgs, board, args.square, args.name or out.stem)
+    cal = calibrate_images(imgs, board, args.square, args.name or out.stem, args.model, args.rational)
     c = cal.camera
-    comment = (f"calibrated with horizon-nav calibrate (cv2.fisheye) from {len(cal.per_image_px)} images, "
+    how = "cv2.fisheye" if c.model == "fisheye" else f"cv2.calibrateCamera, {'rational' if args.rational else 'plumb_bob'}"
+    comment = (f"calibrated with horizon-nav calibrate ({how}) from {len(cal.per_image_px)} images, "
                f"board {board[0]}x{board[1]}, square {args.square} m\nRMS reprojection error {cal.rms_px:.4f} px")
     save_camera(c, out, comment)
     for lab, e in cal.per_image_px.items():
         print(f"  {lab}: {e:.4f} px")
     for lab in cal.skipped:
         print(f"  {lab}: board not found, skipped")
-    print(f"{out}: fx {c.fx:.3f} fy {c.fy:.3f} cx {c.cx:.3f} cy {c.cy:.3f} px, k {list(c.k)}, "
+    coeffs = f"k {list(c.k)}" if c.model == "fisheye" else f"opencv_D {list(c.dist)}"
+    print(f"{out}: fx {c.fx:.3f} fy {c.fy:.3f} cx {c.cx:.3f} cy {c.cy:.3f} px, {coeffs}, "
           f"RMS reprojection error {cal.rms_px:.4f} px over {len(cal.per_image_px)} images")
+    print(describe(c))
     return 0

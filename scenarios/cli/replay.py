@@ -12,6 +12,8 @@ from scenarios.errors import UserError
 
 NAME = "replay"
 HELP = "replay a flight log: vision front end, filter, smoother -> solution MCAP + Rerun recording + summary"
+EPILOG = ("The summary ends with a verdict (docs/replay.md \"Verdict\"). Exit codes: 0 OK or DEGRADED, 2 input "
+          "refused, 3 FAILED (the solution must not be used), 4 DEGRADED with --strict, 130 interrupted.")
 
 
 def add_arguments(p) -> None:
@@ -41,7 +43,12 @@ def add_arguments(p) -> None:
     p.add_argument("--rrd", default=None, help="Rerun recording (default: next to the solution, FLIGHT.rrd)")
     p.add_argument("--no-rerun", action="store_true", help="do not write a Rerun recording")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH|-",
+                   help="the summary and verdict as one JSON object: to stdout instead of the table (-, the "
+                        "default) or written to PATH (the table still printed); put it after the log")
+    p.add_argument("--strict", action="store_true",
+                   help="a DEGRADED verdict exits with code 4 (FAILED always exits with 3)")
+    p.epilog = EPILOG
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -66,7 +73,13 @@ def options_from_args(args):
                          rrd_image_rate_hz=getattr(args, "rrd_image_rate", None),
                          masks=masks, workers=args.workers, output=args.output,
                          rrd="" if args.no_rerun else args.rrd, spawn=args.spawn,
-                         progress=not args.quiet and not args.json)
+                         progress=not args.quiet and _json_target(args) != "-")
+
+
+def _json_target(args):
+    """``--json``: None, ``"-"`` (stdout) or a path (``True`` from a caller's namespace is ``"-"``)."""
+    j = getattr(args, "json", None)
+    return "-" if j is True else (j or None)
 
 
 #: compiled kernels whose numba cache index marks a package as compiled (the filter's propagation
@@ -90,6 +103,9 @@ def run(args) -> int:
     import logging
     logging.getLogger("nav.navigator").setLevel(logging.ERROR)  # rejections are counted in the summary
     opt = options_from_args(args)
+    target = _json_target(args)
+    if target not in (None, "-") and not Path(target).resolve().parent.is_dir():
+        raise UserError(f"--json {target}: its folder does not exist")
     if not args.quiet and not kernels_cached():
         print("first run: numba compiles the filter and vision kernels once (1-2 min; the progress bar waits "
               "in init meanwhile); later runs load them from the cache", file=sys.stderr)
@@ -100,5 +116,15 @@ def run(args) -> int:
         print("replay interrupted: partial solution log written (horizon-nav.status complete = false)", file=sys.stderr)
         return 130
     s = summarize(rr)
-    print(json.dumps(s, indent=1) if args.json else format_table(s))
-    return 0
+    code = rr.verdict.exit_code(strict=getattr(args, "strict", False))
+    s["exit_code"] = code
+    if target == "-":
+        for w in s["warnings"]:     # the terminal says so even when stdout is JSON
+            print(f"horizon-nav replay: warning: {w}", file=sys.stderr)
+        print(json.dumps(s, indent=1))
+    else:
+        if target is not None:
+            from scenarios.atomic import atomic_output
+            atomic_output(target, lambda tmp: Path(tmp).write_text(json.dumps(s, indent=1) + "\n"))
+        print(format_table(s))
+    return code

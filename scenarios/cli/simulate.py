@@ -16,7 +16,6 @@ from nav.rotation import matrix_to_quat
 from scenarios.sim import simulate as sim
 from scenarios.errors import UserError
 from scenarios.sim.scenario import load_scenario
-from vision.camera import to_opencv
 
 NAME = "simulate"
 HELP = "simulate a flight of a scenario (library name or .toml) and write an MCAP log"
@@ -63,9 +62,7 @@ def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = 
         if mounts:
             w.write_tf_static(np.array([t0], np.int64), mounts)
         for c in flight.cameras:
-            K, D = to_opencv(c.camera)
-            w.write_camera_info(c.k, np.array([t0], np.int64), c.camera.width, c.camera.height, K, D,
-                                distortion_model="equidistant")
+            w.write_camera(c.k, np.array([t0], np.int64), c.camera)
             if masks and c.k in masks:
                 w.write_payload_mask(c.k, t0, masks[c.k])
             ct = c.truth

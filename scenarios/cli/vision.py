@@ -52,6 +52,9 @@ def run(args) -> int:
     from vision.frontend import FramePrior, process_frame
 
     cam = load_camera(args.camera)
+    if not args.json:
+        from vision.camera import describe
+        print(describe(cam))
     cfg = load_vision_config(args.config, camera=cam)
     if not (math.isfinite(args.height) and 0 < args.height < 5e7):
         raise UserError(f"--height {args.height}: expected the height above the ellipsoid in metres (> 0)")

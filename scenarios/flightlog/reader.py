@@ -634,6 +634,11 @@ def _check_nan(rd, topic, t, fields):
     for name, v in fields.items():
         if name in no_velocity:
             continue
+        if topic == lf.TOPIC_MEASUREMENTS and name == "nis" and isinstance(fields.get("used"), np.ndarray):
+            # a record that was not used (a TRIAD attitude, a measurement refused before its
+            # gate) has no NIS: NaN there means "none", not bad data
+            bad |= np.isnan(np.asarray(v, float)) & np.asarray(fields["used"], bool)
+            continue
         if isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.shape[:1] == (len(t),):
             bad |= np.isnan(v.reshape(len(t), -1)).any(axis=1)
         elif isinstance(v, np.ndarray) and v.dtype == object and v.shape == (len(t),):
@@ -689,6 +694,10 @@ def _shape_fields(short: str, vals: dict) -> dict:
             n = int(round(np.sqrt(cov.shape[1])))
             if n * n == cov.shape[1]:
                 out["covariance"] = cov.reshape(len(cov), n, n)  # len(): n may be 0
+            if n == 1 and len(cov) and np.isnan(cov).all():
+                # a 1x1 NaN block is the "no covariance" placeholder some solution logs carry
+                # (/nav/ins_unaided): read as what it stands for, an empty covariance
+                out["covariance"] = np.zeros((len(cov), 0, 0))
     if short == f"{lf.PKG}/MeasurementRecord":
         ic = out.get("innovation_covariance")
         if isinstance(ic, np.ndarray) and ic.dtype == np.float64:

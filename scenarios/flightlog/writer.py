@@ -256,6 +256,11 @@ class LogWriter:
                                         _merge_records([p[2] for p in take], src[order], off[order], ln[order]))
         self.message_count += sum(len(p[0]) for p in take)
 
+    def add_metadata(self, name: str, values: dict) -> None:
+        """A further MCAP metadata record ``name`` (values written as str), e.g. a result known
+        only at the end of a run."""
+        self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
+
     def close(self, complete: bool = True, reason: str = "") -> Path:
         """Flush, finish the MCAP file and rename it to ``path``. ``complete=False`` marks a partial
         log (status metadata) but still leaves a valid file. Returns the path."""
@@ -366,6 +371,16 @@ class LogWriter:
                   "binning_x": 0, "binning_y": 0, "roi.x_offset": 0, "roi.y_offset": 0, "roi.height": 0,
                   "roi.width": 0, "roi.do_rectify": False})
         self._put(topic, "sensor_msgs/CameraInfo", t, v)
+
+    def write_camera(self, k: int, t_ns, camera) -> None:
+        """`write_camera_info` of a `vision.camera` model: its ROS distortion model and coefficients
+        (`vision.camera.to_camera_info`: "equidistant" for a fisheye, "plumb_bob" or
+        "rational_polynomial" for a pinhole)."""
+        from vision.camera import to_camera_info
+
+        info = to_camera_info(camera)
+        self.write_camera_info(k, t_ns, camera.width, camera.height, info["K"], info["D"],
+                               distortion_model=info["distortion_model"])
 
     def write_image(self, k: int, t_ns, jpeg, *, format: str = "jpeg") -> None:
         """``sensor_msgs/CompressedImage`` on ``/camera_<k>/image/compressed``: one bytes object

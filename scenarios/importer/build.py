@@ -26,7 +26,6 @@ import numpy as np
 
 from scenarios.config.camera import load_camera, read_payload_mask
 from scenarios.errors import UserError
-from vision.camera import to_opencv
 
 from .footage import Footage, plan_footage
 from .mapping import Mapping, load_mapping
@@ -145,9 +144,7 @@ def write_log(prep: Prepared, output: Path, *, keep_partial: bool = False, windo
         if prep.cameras:
             w.write_tf_static(np.array([t0], np.int64), {cs.k: (cs.translation_m, cs.q_bc) for cs, _, _ in prep.cameras})
         for cs, cam, _ in prep.cameras:
-            K, D = to_opencv(cam)
-            w.write_camera_info(cs.k, np.array([t0], np.int64), cam.width, cam.height, K, D,
-                                distortion_model="equidistant")
+            w.write_camera(cs.k, np.array([t0], np.int64), cam)
             if cs.k in prep.masks:
                 w.write_payload_mask(cs.k, t0, prep.masks[cs.k])
         gens = [(cs.k, iter(fp.frames())) for cs, _, fp in prep.cameras if fp is not None]

@@ -36,6 +36,17 @@ disagree beyond what their noise explains, an ``error`` naming the likely cause.
   0.5, i.e. a dominant direction) means the sensor axes differ from the body axes: an error asking
   for ``axes`` when the import has a GPS (a flight to navigate), a warning for an IMU table alone
   (a bench recording may lie on any side).
+* **time lag between the IMU and the GPS** (``time_lag``): the same two specific-force
+  magnitudes, the IMU's averaged over each GPS interval shifted by a lag ``L``, compared for lags
+  within +-``LAG_SEARCH_S``; the lag of the smallest RMS difference is where the GPS stamps put the
+  motion that the accelerometer saw. Ignition, burnout and manoeuvres make the RMS rise steeply
+  away from the true lag (a 0.2 s shift doubles it on a rocket's boost); a flight without such
+  events (a coast alone) leaves it flat, and the check says so instead of guessing. Statistic: the
+  lag and the RMS at lag 0 and at the best lag. An offset of ``LAG_ERROR_S`` or more is an error
+  (at 1 km/s, 0.1 s is 100 m of position that the filter cannot tell from a correct one, because
+  a shifted ballistic arc is still a ballistic arc); its likely cause is named: GPS time read as
+  UTC or back (the leap seconds), a time zone, or a receiver latency (``offset_s`` of the GPS time
+  table corrects it). Smaller lags above ``LAG_WARN_S`` are a warning.
 
 The checks need the IMU and a GPS with velocities (the GPS-velocity check needs only the GPS);
 each reports why it was skipped otherwise.
@@ -44,7 +55,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nav import earth, ins
+from nav import earth, ins, timescales
 
 BASELINE_S = 10.0
 MOVING_MPS = 5.0
@@ -52,6 +63,11 @@ F_MIN = 3.0
 WINDOW_S = 30.0
 GYRO_FIT_MAX_DEG = 8.0
 FORCE_RATIO = (0.8, 1.25)
+LAG_SEARCH_S = 30.0
+LAG_ERROR_S = 0.1
+LAG_WARN_S = 0.03
+#: the RMS one second away from the best lag must exceed the best by this factor for the lag to count
+LAG_CONTRAST = 1.2
 
 
 def _baselines(t_s: np.ndarray, T: float):
@@ -229,6 +245,73 @@ def check_specific_force(report, imu, gps) -> None:
                                                  f"{1 / ratio:.3g})")
 
 
+def _lag_rms(ti, f_abs, a, b, g_abs, lags):
+    """RMS over the GPS intervals [a, b) of (IMU mean |f| over [a + L, b + L)) - |f_GPS|, per lag L,
+    with the IMU's |f| integrated as means over the preceding sample interval (the import's default
+    ``imu_sample``; point samples shift the lag by half a sample, below ``LAG_WARN_S`` from 20 Hz on)
+    and interpolated, so that the RMS is continuous in L (not stepped at the sample spacing); NaN
+    where fewer than half the intervals lie inside the IMU record."""
+    I = np.concatenate([[0.0], np.cumsum(f_abs[1:] * np.diff(ti))])
+    out = np.full(len(lags), np.nan)
+    for k, L in enumerate(lags):  # a few hundred lags, each vectorised over the intervals
+        m = (a + L >= ti[0]) & (b + L <= ti[-1])
+        if m.sum() >= max(10, len(a) // 2):
+            r = (np.interp(b[m] + L, ti, I) - np.interp(a[m] + L, ti, I)) / (b[m] - a[m]) - g_abs[m]
+            out[k] = np.sqrt(np.mean(r * r))
+    return out
+
+
+def _best_lag(ti, f_abs, a, b, g_abs):
+    """Lag of the smallest RMS (0.2 s grid over +-LAG_SEARCH_S, then 0.01 s around it) and the RMS
+    curve's values at 0, at the best lag and one second either side of it."""
+    coarse = np.arange(-LAG_SEARCH_S, LAG_SEARCH_S + 1e-9, 0.2)
+    r = _lag_rms(ti, f_abs, a, b, g_abs, coarse)
+    if np.all(np.isnan(r)):
+        return None
+    c = coarse[int(np.nanargmin(r))]
+    fine = np.round(np.arange(c - 0.3, c + 0.3 + 1e-9, 0.01), 2)
+    rf = _lag_rms(ti, f_abs, a, b, g_abs, fine)
+    lag = float(fine[int(np.nanargmin(rf))])
+    r0, rb, rm, rp = _lag_rms(ti, f_abs, a, b, g_abs, [0.0, lag, lag - 1.0, lag + 1.0])
+    return lag, r0, rb, np.nanmin([rm, rp])
+
+
+def _lag_cause(offset_s: float, t_ns: int) -> str:
+    gps_utc = float(timescales.tai_minus_utc_s(np.array([t_ns]), beyond_table="hold")[0]) - 19.0
+    if abs(abs(offset_s) - gps_utc) < 0.5:
+        cause = f"GPS time read as UTC or UTC as GPS time (GPS - UTC = {gps_utc:.0f} s then)"
+    else:
+        cause = "a receiver latency or a clock offset between the recorders"
+    return f"{cause}; offset_s = {-offset_s:.3f} in [gps.time] corrects it"
+
+
+def check_time_lag(report, imu, gps) -> None:
+    """Time offset of the GPS stamps against the IMU's from the specific force (module docstring)."""
+    if not gps.has_velocity or len(gps.t_ns) < 3:
+        report.add("info", "gps", "time_lag", "no GPS velocities: time-lag check skipped")
+        return
+    t0 = int(gps.t_ns[0])
+    tg = (gps.t_ns - t0) / 1e9
+    i, j, fg = _gps_force(gps, tg)
+    _, f = _imu_rates(imu)
+    found = _best_lag((imu.t_ns - t0) / 1e9, np.linalg.norm(f, axis=1), tg[i], tg[j], np.linalg.norm(fg, axis=1))
+    if found is None or not found[3] > LAG_CONTRAST * found[2]:
+        report.add("info", "gps", "time_lag", "the specific force does not change enough (no boost, burnout or "
+                                              "manoeuvre in the record): time-lag check skipped")
+        return
+    lag, r0, rb, _ = found
+    offset = -lag
+    stat = (f"GPS stamps {offset:+.2f} s off the IMU's (|f| RMS difference {r0:.3g} m/s^2 at lag 0, "
+            f"{rb:.3g} at the best lag; accepted below {LAG_WARN_S:g} s)")
+    if abs(offset) < LAG_WARN_S:
+        report.add("info", "gps", "time_lag", stat)
+    elif abs(offset) < LAG_ERROR_S:
+        report.add("warning", "gps", "time_lag", f"{stat}; likely cause: {_lag_cause(offset, t0)}")
+    else:
+        report.add("error", "gps", "time_lag", f"the GPS and IMU clocks disagree: {stat}; likely cause: "
+                                               f"{_lag_cause(offset, t0)}")
+
+
 def _saturated(w, rate_hz, declared=None) -> np.ndarray:
     """Samples of any axis on a flat top at its largest magnitude or at the declared range
     (the saturation criterion of :mod:`.validate`)."""
@@ -372,6 +455,8 @@ def cross_check(report, imu, gps, gps_spec=None, rate_hz=None) -> None:
     check_body_axes(report, imu, flight=gps is not None)
     if gps is not None and gps_ok:
         check_specific_force(report, imu, gps)
+        if not any(f.check == "specific_force" and f.level == "error" for f in report.findings):
+            check_time_lag(report, imu, gps)
         check_gyro_rotation(report, imu, gps, rate)
         sf = [f for f in report.findings if f.check == "specific_force"]
         if sf and sf[-1].level == "info" and "skipped" not in sf[-1].message:

@@ -16,6 +16,19 @@ Layout written into ``out_dir``::
 
 Numbers are written by Arrow's CSV writer with the shortest representation that reads back to the
 same float64 (as Python's ``repr``): the tables round-trip bit for bit; times are integer ns.
+
+A solution log (``FLIGHT.solution.mcap`` of ``horizon-nav replay``: metadata ``kind =
+"solution"`` or a ``/nav/forward`` topic) is exported as tables instead (:func:`export_solution`),
+each as CSV and Parquet::
+
+    forward.csv / .parquet      the forward filter at every covariance epoch
+    smoothed.csv / .parquet     the RTS smoother at the same epochs (when the log has it)
+    ins_unaided.csv / .parquet  the free-inertial solution (time, position, velocity, attitude)
+    measurements.csv / .parquet every measurement offered to the filter: source, used, reason,
+                                NIS, innovation and its predicted 1-sigma per component
+
+The columns are those of :mod:`scenarios.replay.table` (docs/replay.md "Exporting a solution").
+Every file is written atomically (:mod:`scenarios.atomic`).
 """
 from __future__ import annotations
 
@@ -25,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from nav.timescales import format_utc
+from scenarios.atomic import atomic_output, atomic_write_text
 from scenarios.config.camera import save_camera
 from scenarios.errors import UserError
 from scenarios.flightlog.reader import read_log
@@ -40,12 +54,15 @@ class ExportResult:
     out_dir: Path
     files: dict = field(default_factory=dict)  # label -> Path
     counts: dict = field(default_factory=dict)
+    #: a solution log's export: what its T+ column counts from (else None)
+    t_plus_origin: str | None = None
 
 
 def _write_csv(path: Path, cols: dict) -> None:
     import pyarrow as pa
     import pyarrow.csv as pcsv
-    pcsv.write_csv(pa.table(cols), path, write_options=pcsv.WriteOptions(quoting_style="none"))
+    atomic_output(path, lambda tmp: pcsv.write_csv(pa.table(cols), tmp,
+                                                   write_options=pcsv.WriteOptions(quoting_style="none")))
 
 
 def _toml_float(x: float) -> str:
@@ -85,6 +102,11 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
     if video_codec not in VIDEO_CODECS:
         raise UserError(f"video codec {video_codec!r}: expected one of {list(VIDEO_CODECS)}")
     log = read_log(log_path)
+    if is_solution_log(log):
+        return export_solution(log, log_path, out_dir)
+    if log.imu is None and log.imu_increment is None and log.gps is None and not log.cameras:
+        raise UserError(f"{log_path}: neither a flight log (no /imu, /imu/increment, /gps or camera topic) nor a "
+                        f"solution log (no /nav/forward); nothing to export")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     res = ExportResult(out)
@@ -197,9 +219,129 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
                 "[cameras.footage]", f'video = "camera_{k}{ext}"', f"jpeg_quality = {int(jpeg_quality)}",
                 f'timestamps = {{ file = "camera_{k}_frames.csv", frame_column = "frame", '
                 f'time = {{ column = "t_utc_ns", base = "unix", unit = "ns" }} }}', ""]))
-    (out / "mapping.toml").write_text("\n".join(head + sections + cam_img))
+    atomic_write_text(out / "mapping.toml", "\n".join(head + sections + cam_img))
     res.files["mapping"] = out / "mapping.toml"
     if video and cam_vid:
-        (out / "mapping_video.toml").write_text("\n".join(head + sections + cam_vid))
+        atomic_write_text(out / "mapping_video.toml", "\n".join(head + sections + cam_vid))
         res.files["mapping_video"] = out / "mapping_video.toml"
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# Solution logs
+# ------------------------------------------------------------------------------------------------
+def is_solution_log(log) -> bool:
+    """A solution log of ``horizon-nav replay``: metadata ``kind = "solution"`` or a /nav/forward topic."""
+    from scenarios.flightlog import format as lf
+    return log.info.get("kind") == "solution" or lf.TOPIC_NAV_FORWARD in log.topics
+
+
+def mission_origin_ns(log) -> tuple[int, str]:
+    """The T+ origin of a solution log [ns] and what it is: lift-off, else the mission-time origin
+    the replay recorded (the input log's first IMU sample), else the first forward epoch."""
+    for key, what in (("liftoff_utc_ns", "lift-off"), ("mission_time_origin_ns", "the input log's first IMU sample")):
+        v = log.info.get(key, "")
+        if v and v.lstrip("-").isdigit():
+            return int(v), what
+    return int(log.nav["forward"].t_ns[0]), "the first forward epoch"
+
+
+def _time_columns(t_ns, origin: int) -> dict:
+    t_ns = np.asarray(t_ns, np.int64)
+    return {"t_ns": t_ns, "t_plus_s": (t_ns - origin) / 1e9}
+
+
+def _write_tables(out: Path, stem: str, cols: dict, res: ExportResult) -> None:
+    """``stem.csv`` (``time_utc`` as ISO-8601 text) and ``stem.parquet`` (a UTC timestamp column),
+    each atomically, ``time_utc`` first."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+    import pyarrow.parquet as pq
+    t = np.asarray(cols["t_ns"], np.int64)
+    iso = np.char.add(np.datetime_as_string(t.astype("datetime64[ns]"), unit="ns"), "Z")
+    body = {k: v for k, v in cols.items()}
+    csv_tab = pa.table({"time_utc": iso, **body})
+    pq_tab = pa.table({"time_utc": pa.array(t, pa.timestamp("ns", tz="UTC")), **body})
+    atomic_output(out / f"{stem}.csv", lambda tmp: pcsv.write_csv(csv_tab, tmp))
+    atomic_output(out / f"{stem}.parquet", lambda tmp: pq.write_table(pq_tab, tmp))
+    res.files[stem] = out / f"{stem}.csv"
+    res.files[f"{stem}_parquet"] = out / f"{stem}.parquet"
+    res.counts[stem] = len(t)
+
+
+def _nav_columns(log_path, series, origin: int, *, states: bool, full_nav: bool = True) -> dict:
+    """:func:`scenarios.replay.table.solution_columns` of a NavSolution series of the log; without
+    ``states`` (the free-inertial solution, which has no covariance) time, position, velocity and
+    attitude only. ``full_nav``: the log's 9x9 navigation blocks are full at every epoch (metadata
+    ``nav_covariance = "full"``)."""
+    from scenarios.replay.table import NAV, solution_columns
+    tc = _time_columns(series.t_ns, origin)
+    K = len(tc["t_ns"])
+    if not states:
+        cols = solution_columns(tc["t_ns"], tc["t_plus_s"], series.position_e, series.velocity_e, series.q_eb,
+                                np.zeros((K, NAV)), [])
+        return {k: v for k, v in cols.items() if not k.endswith("_sd")}
+    cov = np.asarray(series.covariance, float)
+    names = list(series.state_names)
+    m = len(names)
+    if m < NAV or cov.shape != (K, m, m) or np.shape(series.state) != (K, m):
+        raise UserError(f"{log_path}: topic {series.topic}: expected {m} state names (at least {NAV}), a covariance "
+                        f"({K}, {m}, {m}) and a state ({K}, {m}); got covariance {cov.shape}, state "
+                        f"{np.shape(series.state)}")
+    P_nav = cov[:, :NAV, :NAV].copy()
+    if not full_nav:   # a log that keeps only the diagonal between updates: those epochs have no NED sigmas
+        diag_only = ~np.any(P_nav - np.einsum("kii->ki", P_nav)[:, :, None] * np.eye(NAV) != 0.0, axis=(1, 2))
+        P_nav[diag_only] = np.nan
+    return solution_columns(tc["t_ns"], tc["t_plus_s"], series.position_e, series.velocity_e, series.q_eb,
+                            np.diagonal(cov, axis1=1, axis2=2), names, np.asarray(series.state, float), P_nav)
+
+
+def _measurement_columns(log_path, origin: int) -> dict | None:
+    """Every measurement of ``/nav/measurements`` (several share a stamp, hence ``read_multi``):
+    source, used, reason, NIS, the innovation's components ``innovation_<i>`` and their predicted
+    1-sigma ``innovation_sd_<i>`` (sqrt of S's diagonal), NaN beyond a measurement's size."""
+    from scenarios.flightlog import format as lf
+    from scenarios.replay.inputs import read_multi
+    m = read_multi(log_path, lf.TOPIC_MEASUREMENTS)
+    n = len(m["t_ns"])
+    if not n:
+        return None
+    inn = [np.asarray(x, float).ravel() for x in m["innovation"]]
+    S = [np.asarray(x, float).ravel() for x in m["innovation_covariance"]]
+    width = max(len(x) for x in inn)
+    I = np.full((n, width), np.nan)
+    D = np.full((n, width), np.nan)
+    for i, (a, c) in enumerate(zip(inn, S)):
+        I[i, :a.size] = a
+        if c.size == a.size * a.size and a.size:
+            D[i, :a.size] = np.sqrt(np.clip(np.diag(c.reshape(a.size, a.size)), 0.0, None))
+    order = np.argsort(m["t_ns"], kind="stable")
+    cols = _time_columns(m["t_ns"][order], origin)
+    cols.update(source=np.asarray(m["source"]).astype(str)[order], used=np.asarray(m["used"], bool)[order],
+                reason=np.asarray(m["reason"]).astype(str)[order], nis=np.asarray(m["nis"], float)[order],
+                size=np.array([x.size for x in inn], np.int64)[order])
+    cols.update({f"innovation_{j}": I[order, j] for j in range(width)})
+    cols.update({f"innovation_sd_{j}": D[order, j] for j in range(width)})
+    return cols
+
+
+def export_solution(log, log_path, out_dir) -> ExportResult:
+    """Export a solution log (module docstring) into ``out_dir``."""
+    out = Path(out_dir)
+    nav = log.nav
+    if "forward" not in nav or not len(nav["forward"].t_ns):
+        raise UserError(f"{log_path}: a solution log without /nav/forward messages (an interrupted replay?); "
+                        f"nothing to export")
+    origin, what = mission_origin_ns(log)
+    out.mkdir(parents=True, exist_ok=True)
+    res = ExportResult(out)
+    res.t_plus_origin = what
+    for name in ("forward", "smoothed", "ins_unaided"):
+        if name in nav and len(nav[name].t_ns):
+            cols = _nav_columns(log_path, nav[name], origin, states=name != "ins_unaided",
+                                full_nav=log.info.get("nav_covariance") == "full")
+            _write_tables(out, name, cols, res)
+    meas = _measurement_columns(log_path, origin)
+    if meas is not None:
+        _write_tables(out, "measurements", meas, res)
     return res

@@ -19,7 +19,8 @@ recording, the progress bar, the stage timings and the handling of Ctrl-C. Stage
    With ``--vision vectors`` the log's ``/camera_<k>/vectors`` are used as they are.
 4. **filter**: :func:`nav.navigator.run` (one call over the window; it cannot be resumed).
 5. **smoother**: :func:`nav.smoother.rts_smooth` (unless ``--no-smoother``).
-6. **write**: the solution MCAP (:mod:`.solution_log`), atomically.
+6. **write**: the solution MCAP (:mod:`.solution_log`), atomically, with the verdict
+   (:mod:`.verdict`) as the metadata record ``horizon-nav.verdict``.
 7. **rerun**: the recording (:mod:`.rerun_view`), drawn in a process of its own
    (:mod:`.recording_process`) forked when the replay starts: it imports Rerun while the log is
    read here, sends the camera images while this process initialises, draws the front end's
@@ -63,6 +64,7 @@ from scenarios.replay.steps import (Hooks, check_rate, check_targets, check_visi
                                      read_flight, see, smooth)
 
 NS = 1_000_000_000
+VERDICT_METADATA = "horizon-nav.verdict"   #: the solution log's metadata record of the verdict
 
 
 @dataclass
@@ -109,6 +111,8 @@ class ReplayResult:
     triad_init: object = None
     cpu_timings: dict = field(default_factory=dict)    #: stage -> CPU seconds (this process + workers)
     rerun_timings: dict = field(default_factory=dict)  #: Rerun stage parts -> seconds
+    #: OK / DEGRADED / FAILED with reasons and statistics (:mod:`.verdict`; docs/replay.md "Verdict")
+    verdict: object = None
 
 
 def _cpu() -> float:
@@ -244,11 +248,12 @@ def _read(path, opt: ReplayOptions, timings: dict, cpu: dict):
 
 def _outputs(flight, opt: ReplayOptions, rec):
     """The solution log's path and metadata, and the recording's path (None without one)."""
+    from scenarios.replay import solution_log as SL
     inp = flight.inputs
     out = Path(opt.output) if opt.output else inp.path.with_name(inp.path.name.removesuffix(".mcap") + ".solution.mcap")
     meta = {"scenario": inp.info.get("scenario", ""), "seed": inp.info.get("seed", ""),
             "liftoff_utc_ns": inp.info.get("liftoff_utc_ns", ""), "kind": "solution", "source_log": str(inp.path),
-            "vision": flight.vision, "window_ns": f"{flight.t_from},{flight.t_to}"}
+            "vision": flight.vision, "window_ns": f"{flight.t_from},{flight.t_to}", **SL.log_metadata(inp)}
     rrd = None if rec is None or (opt.spawn and not opt.rrd) else Path(
         opt.rrd or out.with_name(out.name.removesuffix(".mcap").removesuffix(".solution") + ".rrd"))
     return out, meta, rrd
@@ -322,6 +327,7 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
         sol = navigate(flight, tuning=tuning, init=start, vectors=sight, smoother=opt.smoother, hooks=hooks,
                        wording=CLI)
         res = sol.nav
+        verdict = sol.verdict
         if rec is not None:
             rec.check()
             rec.solution(res, vectors, frames)     # the 3D scene and series, drawn while the smoother runs
@@ -333,6 +339,7 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
             rec.finish(sm)         # the smoother's series drawn and the file written while this one is
         with prog.timed("write"):
             SL.write_solution(w, res, sm, cam_numbers, vectors=vectors)
+            w.add_metadata(VERDICT_METADATA, verdict.metadata())
             w.close()
     except KeyboardInterrupt:
         prog.close()
@@ -357,7 +364,7 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
         rerun_parts.update(rec.timings)
     prog.close()
     return ReplayResult(inp, res, sm, vectors, cam_numbers, frames, out, rrd, timings, start.method, mode, sol.notes,
-                        start.triad, cpu, rerun_parts)
+                        start.triad, cpu, rerun_parts, verdict)
 
 
 def _warm_filter(imu, init, tuning, gps, vectors, R_bc, smoother: bool) -> None:

@@ -3,14 +3,20 @@
 Topics, same message conventions as the input log:
 
 * ``/nav/forward``: the filter at every covariance epoch (0.1 s) — position, velocity, q_eb and
-  the covariance of the reported states (``state_names``: ``dx_x..psi_z`` in e, then the estimated
-  IMU errors and camera misalignments ``psi_c_k``); ``state`` holds the estimated parameters
-  (accumulated IMU-error calibration and camera misalignment rotation vectors, the fed-back
-  navigation errors are 0). At update epochs the block is the full posterior covariance, between
-  them its diagonal (what the filter keeps).
-* ``/nav/smoothed``: the RTS smoother at the same epochs (covariance diagonal).
-* ``/nav/ins_unaided``: the free-inertial solution from the same initial state (no covariance: a
-  1x1 NaN, since ``scenarios.flightlog.reader`` cannot reshape an empty one).
+  the covariance of the reported states (``state_names``: ``dx_x..psi_z`` in e, then every
+  estimated group of the layout in its order: IMU errors ``accel_bias_x`` .., camera
+  misalignments ``psi_c_<k>_x`` .., clock offsets ``dt_c_<k>``, estimated vector errors
+  ``zeta_<target>_<k>_x`` .., k the camera number; :func:`reported_groups`, :func:`state_names`); ``state`` holds the
+  estimates at the epoch (``NavResult.estimates``: the accumulated IMU-error calibration, the
+  misalignment rotation vectors, ...; the fed-back navigation errors are 0). At update epochs the
+  covariance is the full posterior, between them the full 9x9 block of dx, dv, psi
+  (``NavResult.P_nav``) and the diagonal of the rest (what the run keeps).
+* ``/nav/smoothed``: the RTS smoother at the same epochs with the same ``state_names`` and
+  ``state`` (``SmoothResult.estimates``); covariance: the 9x9 navigation block
+  (``SmoothResult.P_nav``) and the diagonal of the rest.
+* metadata (:func:`log_metadata`): ``mission_time_origin_ns`` and ``nav_covariance = "full"``.
+* ``/nav/ins_unaided``: the free-inertial solution from the same initial state (no covariance:
+  0x0; the reader takes the 1x1 NaN placeholder of other solution logs as the same).
 * ``/nav/measurements``: every measurement offered to the filter (``gps/position``,
   ``gps/velocity``, ``camera_<k>/earth``, ``camera_<k>/sun``) with its innovation, predicted
   innovation covariance S, NIS, used or the reason it was rejected; and the TRIAD attitudes
@@ -24,13 +30,45 @@ import numpy as np
 
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
 
-NAV_NAMES = [f"{g}_{a}" for g in ("dx", "dv", "psi") for a in "xyz"]
-_FIELD = {"accel_bias": "b_f", "gyro_bias": "b_w"}
+def log_metadata(inputs) -> dict:
+    """The solution log's own metadata keys: ``mission_time_origin_ns`` (the T+ origin of the
+    input log: lift-off, else its first IMU sample) and ``nav_covariance = "full"`` (the 9x9
+    navigation block of /nav/forward and /nav/smoothed is the full covariance at every epoch)."""
+    origin = inputs.liftoff_ns if inputs.liftoff_ns is not None else int(inputs.imu.t_ns[0])
+    return {"mission_time_origin_ns": str(int(origin)), "nav_covariance": "full"}
 
 
 def reported_groups(layout) -> list:
-    """State groups written with the solution: navigation, estimated IMU errors, camera misalignments."""
-    return [g for g in layout.groups if g.name in ("dx", "dv", "psi") or (g.estimated and not g.name.startswith("zeta_"))]
+    """State groups written with the solution: the navigation errors and every estimated group
+    (IMU errors, camera misalignments, clock offsets, estimated vector errors), in layout order."""
+    return [g for g in layout.groups if g.name in ("dx", "dv", "psi") or g.estimated]
+
+
+def _camera_group_name(name: str, cam_numbers) -> str:
+    """A per-camera group's name with the camera's number k instead of its index in the replay's
+    camera list (``psi_c_0`` -> ``psi_c_1`` for camera 1)."""
+    head, _, tail = name.rpartition("_")
+    if head.startswith(("psi_c", "dt_c", "zeta_")) and tail.isdigit():
+        i = int(tail)
+        return f"{head}_{cam_numbers[i] if i < len(cam_numbers) else i}"
+    return name
+
+
+def state_names(groups, cam_numbers=()) -> list:
+    """One name per state: ``<group>_x``, ``_y``, ``_z`` for a 3-vector group, the group's name for
+    a scalar one (``dt_c_<k>``), ``<group>_<i>`` otherwise; per-camera groups carry the camera
+    number k (``psi_c_<k>``)."""
+    names = []
+    for g in groups:
+        size = g.slice.stop - g.slice.start
+        nm = _camera_group_name(g.name, cam_numbers)
+        if size == 3:
+            names += [f"{nm}_{a}" for a in "xyz"]
+        elif size == 1:
+            names.append(nm)
+        else:
+            names += [f"{nm}_{i}" for i in range(size)]
+    return names
 
 
 def source_name(kind: str, camera: int, cam_numbers) -> str:
@@ -56,44 +94,34 @@ def write_vectors(w, vectors, cam_numbers, extra: dict | None = None) -> None:
 
 
 def write_solution(w, res, smooth, cam_numbers, *, vectors=None) -> None:
-    """Write a NavResult (and optional SmoothResult) into an open LogWriter."""
-    lay = res.layout
-    groups = reported_groups(lay)
-    idx = np.concatenate([np.arange(lay.n)[g.slice] for g in groups])
-    names = NAV_NAMES + [f"{g.name}_{a}" for g in groups[3:] for a in "xyz"]
+    """Write a NavResult (and optional SmoothResult) into an open LogWriter (module docstring)."""
+    groups = reported_groups(res.layout)
+    idx = np.concatenate([np.arange(res.layout.n)[g.slice] for g in groups])
+    names = state_names(groups, cam_numbers)
     ci = res.cov_idx
     K = len(ci)
     m = idx.size
+    if res.estimates is None:
+        raise ValueError("res: a NavResult without the per-epoch estimates (NavResult.estimates)")
     cov = np.zeros((K, m, m))
     cov[:, np.arange(m), np.arange(m)] = res.P_diag[:, idx]
+    cov[:, :9, :9] = res.P_nav
     pos = np.searchsorted(res.meas_t_ns, res.cov_t_ns)
     hit = (pos < len(res.meas_t_ns)) & (res.meas_t_ns[np.minimum(pos, max(len(res.meas_t_ns) - 1, 0))] == res.cov_t_ns) \
         if len(res.meas_t_ns) else np.zeros(K, bool)
     if hit.any():
         cov[hit] = res.P_full[pos[hit][:, None, None], idx[None, :, None], idx[None, None, :]]  # one gather
-    # estimated parameters: calibration now (final) is all NavResult keeps for the IMU errors;
-    # misalignments are kept per update epoch
-    state = np.zeros((K, m))
-    off = 9
-    for g in groups[3:]:
-        if g.name.startswith("psi_c_") and len(res.misalignment_t_ns):
-            c = int(g.name[6:])
-            j = np.clip(np.searchsorted(res.misalignment_t_ns, res.cov_t_ns, side="right") - 1, 0, None)
-            val = res.misalignment[j, c]
-            val[res.cov_t_ns < res.misalignment_t_ns[0]] = 0.0
-            state[:, off:off + 3] = val
-        elif g.name in _FIELD:
-            state[:, off:off + 3] = getattr(res.calibration, _FIELD[g.name])
-        off += 3
-    w.write_nav("/nav/forward", res.cov_t_ns, res.x_e[ci], res.v_e[ci], res.q_eb[ci], cov, state=state,
-                state_names=names)
+    w.write_nav("/nav/forward", res.cov_t_ns, res.x_e[ci], res.v_e[ci], res.q_eb[ci], cov,
+                state=res.estimates[:, idx], state_names=names)
     if smooth is not None:
         sc = np.zeros((len(smooth.t_ns), m, m))
         sc[:, np.arange(m), np.arange(m)] = smooth.P[:, idx]
-        w.write_nav("/nav/smoothed", smooth.t_ns, smooth.x_e, smooth.v_e, smooth.q_eb, sc, state_names=names)
+        sc[:, :9, :9] = smooth.P_nav
+        w.write_nav("/nav/smoothed", smooth.t_ns, smooth.x_e, smooth.v_e, smooth.q_eb, sc,
+                    state=smooth.estimates[:, idx], state_names=names)
     if len(res.unaided_q_eb):
         w.write_nav("/nav/ins_unaided", res.cov_t_ns, res.unaided_x_e[ci], res.unaided_v_e[ci], res.unaided_q_eb[ci],
-                    np.full((K, 1), np.nan))  # no covariance (1x1 NaN: the reader cannot take 0x0)
+                    np.zeros((K, 0, 0)))   # no covariance
     inn = res.innovations
     if inn:
         w.write_measurement(np.array([i.t_ns for i in inn], np.int64),

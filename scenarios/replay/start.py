@@ -46,6 +46,11 @@ class Start:
     alignment : nav.initialise.Alignment or None
         The alignment and its attitude covariance when ``method`` is ``"align"``; the filter
         starts with its attitude sigma (:func:`.steps.navigate`).
+    vel_sigma : float or None
+        1-sigma [m/s] of the initial velocity when it comes from position-only GPS fixes (their
+        slope, :func:`nav.initialise.gps_velocity_sigma`); the filter starts with it
+        (:func:`.steps.navigate`) instead of the tuning's ``init_vel_sigma``, which is meant for a
+        measured velocity.
     """
 
     state: InitialState
@@ -54,6 +59,7 @@ class Start:
     notes: list = field(default_factory=list)
     request: object = "auto"
     alignment: object = None
+    vel_sigma: float | None = None
 
     def __repr__(self) -> str:
         t = f", TRIAD epoch {self.triad.t_triad_ns}" if self.triad is not None else ""
@@ -95,6 +101,10 @@ def initial_state(flight, vectors, method, init_file=None, state=None, *, search
                          + (f"using the log's truth ({w.set('init', 'truth')})" if method == "truth"
                             else "in-motion alignment from GPS and the accelerometer"))
     alignment = None
+    v_from_gps = False
+    # the log's whole GPS record: the position and velocity at the window's start interpolated
+    # between fixes on both sides of it (for position-only fixes, a slope over a symmetric window)
+    full_gps = inp.gps if inp.gps is not None else gps
     if state is not None:
         init = state
     elif method == "align":
@@ -108,7 +118,7 @@ def initial_state(flight, vectors, method, init_file=None, state=None, *, search
         if not init_file:
             raise UserError("--init given: needs --init-file STATE.toml (time, q_eb, position_e, velocity_e)" if w.cli
                             else "init='given': give the state file's path as init (time, q_eb, position_e, velocity_e)")
-        init = _given_init(init_file, inp, imu, w)
+        init, v_from_gps = _given_init(init_file, inp, imu, w)
     else:
         if not has_pair:
             raise UserError(f"{w.set('init', 'triad')}: no epoch with both a horizon and a Sun vector"
@@ -116,12 +126,16 @@ def initial_state(flight, vectors, method, init_file=None, state=None, *, search
                                f" (use {w.given_state()})"))
         if gps is None:
             raise UserError(f"{w.set('init', 'triad')}: needs GPS position and velocity")
-        init, tri = triad(imu, gps, vectors, R_bc, w)
+        init, tri = triad(imu, full_gps, vectors, R_bc, w)
     if search and mode == "images" and vectors is not None:
         vectors = _correct_earth(vectors, imu, init, inp, R_bc)
         if method == "triad":
-            init, tri = triad(imu, gps, vectors, R_bc, w)
-    return Start(init, method, tri, notes, alignment=alignment)
+            init, tri = triad(imu, full_gps, vectors, R_bc, w)
+    vel_sigma = None
+    if state is None and inp.gps is not None and (method == "triad" or (method == "given" and v_from_gps)):
+        from nav.initialise import gps_velocity_sigma
+        vel_sigma = gps_velocity_sigma(inp.gps, init.t_ns)
+    return Start(init, method, tri, notes, alignment=alignment, vel_sigma=vel_sigma)
 
 
 #: the largest attitude sigma an in-motion alignment may start the filter with: beyond it the
@@ -160,7 +174,8 @@ def triad(imu, gps, vectors, R_bc, wording: Wording = PYTHON):
     return ti.initial, ti
 
 
-def _given_init(path, inp, imu, w: Wording) -> InitialState:
+def _given_init(path, inp, imu, w: Wording) -> tuple:
+    """The state file's InitialState, and whether its position and velocity came from the GPS."""
     p = Path(path)
     what = f"{w.name('init_file')} {p}"
     try:
@@ -172,9 +187,11 @@ def _given_init(path, inp, imu, w: Wording) -> InitialState:
     if i >= imu.t_ns.size - 1:
         raise UserError(f"{what}: time is after the IMU record")
     t0 = int(imu.t_ns[i])
+    from_gps = False
     if "position_e" in d:
         x, v = np.asarray(d["position_e"], float), np.asarray(d.get("velocity_e", [0, 0, 0]), float)
     elif inp.gps is not None:
+        from_gps = True
         from nav.initialise import gps_interpolator
         x, v = gps_interpolator(inp.gps)(t0)
     else:
@@ -182,7 +199,7 @@ def _given_init(path, inp, imu, w: Wording) -> InitialState:
     q = _given_attitude(d, x, imu, i, what)
     if q.shape != (4,) or not np.isclose(np.linalg.norm(q), 1.0, atol=1e-6):
         raise UserError(f"{what}: q_eb must be a unit quaternion [x, y, z, w]")
-    return InitialState(t0, x, v, q)
+    return InitialState(t0, x, v, q), from_gps
 
 
 #: the ways a state file may give the attitude, each a set of keys

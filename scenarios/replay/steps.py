@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from contextlib import nullcontext
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Callable
 
@@ -414,6 +415,8 @@ class Solution:
     notes : list of str
         What the caller should know, from every step (read, initialisation, vision).
     tuning : nav.tuning.Tuning
+    verdict : scenarios.replay.verdict.Verdict
+        (property) ``.status`` OK, DEGRADED or FAILED, ``.reasons``, ``.statistics``.
 
     Examples
     --------
@@ -438,14 +441,20 @@ class Solution:
                 f"{len(res.cov_t_ns)} epochs, init {self.start.method}, measurements: {used} used, "
                 f"{len(res.innovations) - used} rejected)")
 
+    @cached_property
+    def verdict(self):
+        """OK, DEGRADED or FAILED with the reasons and the per-sensor statistics it is judged on
+        (:class:`scenarios.replay.verdict.Verdict`, docs/replay.md "Verdict"); never raises."""
+        from scenarios.replay.verdict import assess
+        return assess(self)
+
     def to_frame(self):
         """The forward solution at the covariance epochs as a pandas DataFrame
         (:mod:`scenarios.replay.table` lists the columns)."""
-        from scenarios.replay.table import solution_frame
+        from scenarios.replay.table import forward_columns, solution_frame
         res = self.nav
-        ci = res.cov_idx
-        return solution_frame(res.cov_t_ns, self.flight.inputs.mission_time(res.cov_t_ns), res.x_e[ci], res.v_e[ci],
-                              res.q_eb[ci], res.P_diag, res.layout)
+        return solution_frame(forward_columns(res, self.flight.inputs.mission_time(res.cov_t_ns),
+                                              self.flight.cam_numbers))
 
 
 def initialise(flight: Flight, vectors=None, *, init="auto", hooks: Hooks | None = None,
@@ -552,6 +561,8 @@ def navigate(flight: Flight, *, tuning=None, init="auto", vectors=None, smoother
         start = initialise(flight, sight, init=init, hooks=hooks, wording=wording)
     if start.alignment is not None:     # the filter starts with the alignment's attitude sigma
         tuning = tuning.with_(init_att_sigma=max(tuning.init_att_sigma, start.alignment.att_sigma))
+    if start.vel_sigma is not None:     # and with the sigma of a velocity from position-only fixes
+        tuning = tuning.with_(init_vel_sigma=max(tuning.init_vel_sigma, start.vel_sigma))
     with hooks.in_stage("filter"):
         try:
             res = navigator.run(flight.imu, start.state, tuning, gps=flight.gps, vectors=sight.vectors,
@@ -590,10 +601,10 @@ class Smoothed:
     def to_frame(self):
         """The smoothed solution as a pandas DataFrame (:mod:`scenarios.replay.table` lists the
         columns)."""
-        from scenarios.replay.table import solution_frame
+        from scenarios.replay.table import smoothed_columns, solution_frame
         r, sol = self.result, self.solution
-        return solution_frame(r.t_ns, sol.flight.inputs.mission_time(r.t_ns), r.x_e, r.v_e, r.q_eb, r.P,
-                              sol.nav.layout)
+        return solution_frame(smoothed_columns(r, sol.nav.layout, sol.flight.inputs.mission_time(r.t_ns),
+                                               sol.flight.cam_numbers))
 
 
 def smooth(solution: Solution, *, hooks: Hooks | None = None) -> Smoothed:

@@ -1,25 +1,33 @@
-"""Replay summary: measurements used / rejected per source with reasons, NIS statistics, final
-camera misalignments with 3 sigma, and errors against truth when the log has it."""
+"""Replay summary: per measurement source the offered / used / rejected counts with reasons, the
+NIS mean against its band and the gaps, IMU gaps, recoveries and input warnings (from the
+verdict's statistics, :mod:`scenarios.replay.verdict`), final camera misalignments with 3 sigma,
+errors against truth when the log has it, and the verdict as the last line."""
 from __future__ import annotations
 
 import os
 import sys
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
 from nav.schmidt import chi2_gate
-from scenarios.replay.solution_log import source_name
+from scenarios.replay.verdict import DOF
 
 NS = 1_000_000_000
-DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
 
 
 def attitude_error(q_est, q_true) -> np.ndarray:
     """psi (in e) from estimated to true attitude (docs/conventions.md), per sample [rad]."""
     return matrix_to_rotvec(quat_to_matrix(q_true) @ np.swapaxes(quat_to_matrix(q_est), -1, -2))
+
+
+def _camera_lines(inp) -> dict:
+    """camera_<k> -> one line with the model and field of view (`vision.camera.describe`)."""
+    from vision.camera import describe
+
+    cams = getattr(inp, "cameras", {}) or {}
+    return {f"camera_{k}": describe(c.camera) for k, c in cams.items() if getattr(c, "camera", None) is not None}
 
 
 def summarize(rr) -> dict:
@@ -28,16 +36,12 @@ def summarize(rr) -> dict:
     out: dict = {"log": str(inp.path), "solution": str(rr.solution_path), "rrd": str(rr.rrd_path) if rr.rrd_path else None,
                  "vision": rr.vision_mode, "init": rr.init_method,
                  "window_tplus_s": [float(inp.mission_time(res.t_ns[0])), float(inp.mission_time(res.t_ns[-1]))],
-                 "timings_s": {k: round(v, 3) for k, v in rr.timings.items()}, "notes": list(rr.messages)}
-    meas: dict = {}
-    for i in res.innovations:
-        src = source_name(i.kind, i.camera, cams)
-        d = meas.setdefault(src, {"used": 0, "rejected": Counter()})
-        if i.accepted:
-            d["used"] += 1
-        else:
-            d["rejected"][i.reason or "?"] += 1
-    out["measurements"] = {k: {"used": v["used"], "rejected": dict(v["rejected"])} for k, v in sorted(meas.items())}
+                 "timings_s": {k: round(v, 3) for k, v in rr.timings.items()}, "notes": list(rr.messages),
+                 "cameras": _camera_lines(inp)}
+    verdict = rr.verdict
+    st = verdict.statistics if verdict is not None else {}
+    out["measurements"] = {k: {"used": d["accepted"], "rejected": dict(d["rejected"])}
+                           for k, d in st.get("sensors", {}).items()}
     other = {k: v for k, v in res.rejected.items() if not any(k.startswith(p) for p in ("gps_pos_", "gps_vel_", "hor_", "sun_", "moon_"))}
     out["other_rejections"] = other
     nis = {}
@@ -63,6 +67,12 @@ def summarize(rr) -> dict:
     ve = vector_errors(rr)
     if ve:
         out["vector_errors"] = ve
+    if verdict is not None:
+        empty = {"sensors": {}, "imu_gaps": None, "recoveries": [], "gps_steps": [], "position_sigma_m": None,
+                 "tail_from_tplus_s": None, "imu_ends_before_gps_s": 0.0, "warnings": list(getattr(inp, "notes", [])),
+                 "truncated": False}
+        out.update({k: st.get(k, v) for k, v in empty.items()})
+        out["verdict"] = verdict.to_dict()
     return out
 
 
@@ -156,18 +166,13 @@ def format_table(s: dict) -> str:
     L.append(f"replay of {s['log']}: T+{w0:.1f} .. T+{w1:.1f} s, vision from {s['vision']}, init {s['init']}")
     for n in s["notes"]:
         L.append(f"  note: {n}")
-    L.append("")
-    L.append(f"{'measurement':<18} {'used':>6} {'rejected':>9}  reasons")
-    for src, d in s["measurements"].items():
-        rej = sum(d["rejected"].values())
-        why = ", ".join(f"{k}: {v}" for k, v in d["rejected"].items())
-        L.append(f"{src:<18} {d['used']:>6} {rej:>9}  {why}")
+    for k, line in s.get("cameras", {}).items():
+        L.append(f"  {k}: {line}")
+    for w in s.get("warnings", []):
+        L.append(f"  WARNING: {w}")
+    L += sensor_table(s)
     if s["other_rejections"]:
         L.append("other: " + ", ".join(f"{k}: {v}" for k, v in s["other_rejections"].items()))
-    L.append("")
-    L.append(f"{'NIS':<10} {'n':>6} {'mean':>8} {'dof':>4} {'in 95% band':>12}")
-    for k, d in s["nis"].items():
-        L.append(f"{k:<10} {d['n']:>6} {d['mean']:>8.2f} {d['dof']:>4} {100 * d['inside95']:>11.1f}%")
     if s["misalignment_final"]:
         L.append("")
         L.append("camera misalignment (final, b frame) [deg]      3 sigma [deg]")
@@ -200,7 +205,44 @@ def format_table(s: dict) -> str:
     L.append("")
     L.append("time per stage [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()))
     L.append(f"solution: {s['solution']}" + (f"   recording: {s['rrd']}  (open with: {viewer_command(s['rrd'])})" if s["rrd"] else ""))
+    if "verdict" in s:
+        L += verdict_lines(s["verdict"])
     return "\n".join(L)
+
+
+def sensor_table(s: dict) -> list:
+    """Lines of the per-sensor table: offered / used / rejected with the main reasons, the mean NIS
+    of the accepted measurements against the 95 % band of the mean (``chi2(N m) / N``), the gaps
+    between offered measurements; then IMU gaps, recoveries, GPS track steps."""
+    L = ["", f"{'measurement':<16} {'offered':>7} {'used':>6} {'rej.':>5} {'NIS mean':>8} {'95% band':>12} "
+         f"{'gaps':>4} {'longest':>8}  rejected because"]
+    for src, d in s.get("sensors", {}).items():
+        n = d["nis"]
+        band = f"{n['band95'][0]:.2f}..{n['band95'][1]:.2f}" if n else ""
+        why = ", ".join(f"{k}: {v}" for k, v in list(d["rejected"].items())[:3])
+        if d.get("non_finite"):
+            why += ("; " if why else "") + f"{d['non_finite']} non-finite (missing, not counted)"
+        g = d["gaps"]
+        mean = f"{n['mean']:.2f}" if n else "-"
+        L.append(f"{src:<16} {d['offered']:>7} {d['accepted']:>6} {d['offered'] - d['accepted']:>5} {mean:>8} {band:>12} "
+                 f"{g['count']:>4} {g['longest_s']:>7.1f}s  {why}")
+    g = s.get("imu_gaps")
+    if g is not None:
+        L.append(f"IMU gaps over {g['threshold_s']:g} s: {g['count']}" + (f", longest {g['longest_s']:.2f} s" if g["count"] else ""))
+    rec = s.get("recoveries", [])
+    L.append("recoveries: " + (", ".join(f"T+{r['tplus_s']:.1f} s {r['reason']}" for r in rec) if rec else "none"))
+    if s.get("gps_steps"):
+        L.append(f"GPS track steps its velocity does not explain: {len(s['gps_steps'])} (" + ", ".join(
+            f"{p['size_m']:.0f} m at T+{p['tplus_s']:.1f} s" for p in s["gps_steps"][:3]) + ")")
+    return L
+
+
+def verdict_lines(v: dict) -> list:
+    """The verdict as the summary's last lines: notes, with FAILED the findings that alone would
+    make it DEGRADED, then ``verdict: STATUS: reasons``."""
+    L = [""] + [f"  note: {n}" for n in v["notes"]] + [f"  also: {r}" for r in v.get("also", [])]
+    L.append(f"verdict: {v['status']}" + (f": {'; '.join(v['reasons'])}" if v["reasons"] else ""))
+    return L
 
 
 def viewer_command(rrd) -> str:
@@ -219,4 +261,4 @@ def viewer_command(rrd) -> str:
     return f"{cmd} {rrd}"
 
 
-__all__ = ["summarize", "format_table", "truth_errors", "vector_errors", "attitude_error", "viewer_command"]
+__all__ = ["summarize", "format_table", "sensor_table", "verdict_lines", "truth_errors", "vector_errors", "attitude_error", "viewer_command"]

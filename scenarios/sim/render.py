@@ -1,4 +1,4 @@
-"""Synthetic fisheye camera images of the Earth's horizon, the Sun and the Moon, with exact truth.
+"""Synthetic camera images (any `vision.camera` model) of the Earth's horizon, the Sun and the Moon, with exact truth.
 
 What the renderer draws, per pixel, along the pixel-centre ray of the camera model
 (:func:`vision.camera.pixel_rays`, 003 eqs. (13)-(16)) rotated into e with the frame's truth
@@ -57,7 +57,7 @@ from nav import earth
 from nav.rotation import rotvec_to_matrix
 from scenarios.sim import _render_kernel as K
 from scenarios.sim import clouds
-from vision.camera import FisheyeCamera, pixel_rays, project
+from vision.camera import CAMERA_TYPES, Camera, pixel_rays, project
 
 __all__ = [
     "SUN_ANGULAR_RADIUS",
@@ -292,7 +292,7 @@ def limb_profile(h_t: np.ndarray, options: RenderOptions | None = None, *,
 
 
 class _CameraData:
-    def __init__(self, camera: FisheyeCamera):
+    def __init__(self, camera: Camera):
         self.camera = camera
         rays = pixel_rays(camera)
         if not np.all(np.isfinite(rays)):
@@ -348,10 +348,10 @@ class _CameraData:
         return m
 
 
-_CAMERA_CACHE: dict[FisheyeCamera, _CameraData] = {}
+_CAMERA_CACHE: dict[Camera, _CameraData] = {}
 
 
-def _camera_data(camera: FisheyeCamera) -> _CameraData:
+def _camera_data(camera: Camera) -> _CameraData:
     cd = _CAMERA_CACHE.get(camera)
     if cd is None:
         if len(_CAMERA_CACHE) >= 4:
@@ -361,7 +361,7 @@ def _camera_data(camera: FisheyeCamera) -> _CameraData:
     return cd
 
 
-def payload_mask(camera: FisheyeCamera, polygon: Sequence[Sequence[float]]) -> np.ndarray:
+def payload_mask(camera: Camera, polygon: Sequence[Sequence[float]]) -> np.ndarray:
     """Boolean (H, W) mask of the payload polygon given in image fractions (x of the width,
     y of the height): the region a detector must ignore (003 §3.1)."""
     pts = np.asarray(polygon, dtype=float) * [camera.width, camera.height]
@@ -387,8 +387,8 @@ def _lut(gamma: float, black: float = 0.0) -> np.ndarray:
 
 
 def _check_inputs(camera, R_ec, x_e, sun_e, moon_e):
-    if not isinstance(camera, FisheyeCamera):
-        raise ValueError(f"render_frame: camera must be a vision.camera.FisheyeCamera, got "
+    if not isinstance(camera, CAMERA_TYPES):
+        raise ValueError(f"render_frame: camera must be a vision.camera model, got "
                          f"{type(camera).__name__}")
     R = np.asarray(R_ec, dtype=float)
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
@@ -599,14 +599,14 @@ _EMPTY_MASK = np.zeros((1, 1), np.bool_)
 _EMPTY_VIGN = np.ones((1, 1), np.float32)
 
 
-def render_frame(camera: FisheyeCamera, R_ec, x_e, sun_e, moon_e=None, *, seed: int = 0,
+def render_frame(camera: Camera, R_ec, x_e, sun_e, moon_e=None, *, seed: int = 0,
                  options: RenderOptions | None = None, omega_c=None,
                  cloud_seed: int | None = None) -> RenderedFrame:
     """Render one camera frame at a truth pose.
 
     Parameters
     ----------
-    camera : FisheyeCamera
+    camera : any vision.camera model (fisheye, equidistant, pinhole)
         Intrinsics (003 eqs. (13)-(16)).
     R_ec : (3, 3)
         Camera attitude, camera frame c -> e (docs/conventions.md "Rotations").
@@ -835,13 +835,13 @@ def _get(rec, name, default=None):
     return getattr(rec, name, default)
 
 
-def render_flight_frames(scenario_cameras: Sequence[FisheyeCamera], frames_truth: Iterable[Any], *,
+def render_flight_frames(scenario_cameras: Sequence[Camera], frames_truth: Iterable[Any], *,
                          seed: int = 0, options: RenderOptions | None = None,
                          progress: bool = True, ephemeris: Any = None,
                          total: int | None = None) -> Iterator[tuple[int, int, bytes]]:
     """Render and JPEG-encode every frame of a simulated flight.
 
-    ``scenario_cameras``: the cameras' intrinsics, indexed by ``camera_index`` (a FisheyeCamera, or
+    ``scenario_cameras``: the cameras' intrinsics, indexed by ``camera_index`` (a vision.camera model, or
     an object with a ``camera`` or ``intrinsics`` attribute holding one). ``frames_truth``: records
     (FrameTruth, or any mapping/object with ``camera_index``, ``t_ns``, ``R_ec``, ``x_e`` and
     optionally ``omega_c``). Sun and Moon come from :mod:`nav.ephemeris` at ``t_ns`` (pass
@@ -859,9 +859,9 @@ def render_flight_frames(scenario_cameras: Sequence[FisheyeCamera], frames_truth
     o = options or RenderOptions()
     cams = []
     for c in scenario_cameras:
-        cam = c if isinstance(c, FisheyeCamera) else (_get(c, "camera") or _get(c, "intrinsics"))
-        if not isinstance(cam, FisheyeCamera):
-            raise ValueError(f"render_flight_frames: camera entry {c!r} is not a FisheyeCamera")
+        cam = c if isinstance(c, CAMERA_TYPES) else (_get(c, "camera") or _get(c, "intrinsics"))
+        if not isinstance(cam, CAMERA_TYPES):
+            raise ValueError(f"render_flight_frames: camera entry {c!r} is not a vision.camera model")
         cams.append(cam)
     if total is None and hasattr(frames_truth, "__len__"):
         total = len(frames_truth)  # type: ignore[arg-type]

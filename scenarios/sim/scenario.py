@@ -410,7 +410,8 @@ def resolve_camera_path(intrinsics: str, where: str = "", key: str = "intrinsics
 
 
 def load_camera_for(cam: CameraConfig, source: str = ""):
-    """The :class:`vision.camera.FisheyeCamera` of a camera config."""
+    """The camera model (`vision.camera`) of a camera config: its camera file (any format of
+    scenarios/config/camera.py), or the equidistant fisheye of ``fov_deg``."""
     from scenarios.config.camera import load_camera
     from vision.camera import from_fov
 
