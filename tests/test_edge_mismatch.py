@@ -53,7 +53,7 @@ def test_low_edge_moves_the_estimated_height(setup):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="containment 0.83-0.96 at 0-10 km: camera-1 twilight frames whose "
+@pytest.mark.xfail(strict=True, reason="containment 0.83-0.96 at 0-10 km: twilight frames of camera 0 whose "
                    "threshold edge follows a dark band on the ground instead of the limb (a wrong edge, "
                    "not a wrong height); strict: it reports when the acceptance is met")
 def test_full_study_containment():
