@@ -213,22 +213,31 @@ def test_flank_heights_of_a_clipped_limb_against_the_truth(clipped):
 
 
 def test_nadir_of_a_clipped_limb_from_the_flank_fit(clipped):
-    """Through the whole front end (defaults, Sun direction in the prior): the clipped frames take
-    the flank path and their nadir error is < 0.05 deg at all three exposures, inside 3 sigma; with the
-    flank fit off (``limb.flank.profiles = 0``) the threshold edge's error is larger."""
+    """Through the whole front end (Sun direction in the prior): the clipped frames take the flank
+    path. With the edge height held at the limb model's (``edge.estimate = false``: the model is
+    the renderer's, so its heights are right) the nadir error is < 0.05 deg at all three exposures,
+    inside 3 sigma; with the flank fit off (``limb.flank.profiles = 0``) the threshold edge's error
+    is larger. With the defaults (the height fitted, its along-the-limb variation in the
+    covariance, `vision.edge_height`) the error stays inside 3 sigma and below 0.15 deg (the price
+    of not trusting the height model: measured 0.10 deg at the worst exposure)."""
     R, x, sun, frames = clipped
     cfg = default_config(CAM.fx)
-    off = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, limb=dataclasses.replace(
+    fixed = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, edge=dataclasses.replace(
+        cfg.earth.edge, estimate=False)))
+    off = dataclasses.replace(fixed, earth=dataclasses.replace(fixed.earth, limb=dataclasses.replace(
         cfg.earth.limb, flank=dataclasses.replace(cfg.earth.limb.flank, profiles=0))))
     sun_c = R.T @ (sun / np.linalg.norm(sun))
     for k, fr, img in frames:
-        res = process_frame(img, CAM, cfg, prior=FramePrior(x, R, sun_c=sun_c))
-        rec = res.record("earth")
-        assert rec is not None and res.targets["earth"].limb_path == "flank", (k, res.targets["earth"].limb_path)
-        err = angle_deg(rec.e_c, fr.e_c_earth)
-        assert err < 0.05 and err < 3 * rec.sigma_deg, (k, err, rec.sigma_deg)
+        for c, tol in ((fixed, 0.05), (cfg, 0.15)):
+            res = process_frame(img, CAM, c, prior=FramePrior(x, R, sun_c=sun_c))
+            rec = res.record("earth")
+            assert rec is not None and res.targets["earth"].limb_path == "flank", (k, res.targets["earth"].limb_path)
+            err = angle_deg(rec.e_c, fr.e_c_earth)
+            assert err < tol and err < 3 * rec.sigma_deg, (k, err, rec.sigma_deg)
+            if c is fixed:
+                err_fixed = err
         rec0 = process_frame(img, CAM, off, prior=FramePrior(x, R, sun_c=sun_c)).record("earth")
-        assert angle_deg(rec0.e_c, fr.e_c_earth) > err, (k, angle_deg(rec0.e_c, fr.e_c_earth), err)
+        assert angle_deg(rec0.e_c, fr.e_c_earth) > err_fixed, (k, angle_deg(rec0.e_c, fr.e_c_earth), err_fixed)
 
 
 def test_phase_function_is_the_renderers():
@@ -272,7 +281,8 @@ def test_limb_near_the_sun_with_the_phase_slope():
     tilts the fit. With the phase function's change along each profile divided out
     (`LimbOptions.aerosol_weight` = the renderer's 0.25) the error is smaller than with a Rayleigh-only
     phase function (measured 0.073 against 0.096 deg; the same frame rendered without the aerosol
-    lobe: 0.042)."""
+    lobe: 0.042). The edge height is held at the limb model's (``edge.estimate = false``): the test
+    is of the limb model, which is the renderer's here."""
     from nav import ephemeris
     from scenarios.sim.scenario import load_scenario
     from scenarios.sim.simulate import simulate_flight
@@ -286,6 +296,7 @@ def test_limb_near_the_sun_with_the_phase_slope():
     img = cv2.imdecode(np.frombuffer(render.encode_jpeg(fr.image, 90), np.uint8), cv2.IMREAD_COLOR)
     mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
     cfg = default_config(cam.fx)
+    cfg = dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, edge=dataclasses.replace(cfg.earth.edge, estimate=False)))
     sun_c = r.R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e)
     errs = {}
     for w in (0.0, opts.aerosol_weight):

@@ -9,7 +9,8 @@ search), `candidates` (edge pieces); fitting: `nadir` (cone fits), `ransac`, `ob
 models: sphere, ellipsoid), `conic` (the general conic fit, a baseline), `fitting` (the front
 end's fits), `scoring` (one candidate's tests), `probes` and `image_geometry` (image checks around
 a fitted cone); `limb` and `limb_refit` (the exposure-invariant limb edge); `covariance` (003 eqs.
-(33)-(38)); `frontend` (the pipeline), `config`, `results`; `error_model` and `design` (predicted
+(33)-(38)); `edge_height` (the edge height fitted with the nadir); `frontend` (the pipeline),
+`config`, `results`; `error_model` and `design` (predicted
 vision errors, camera design studies); `annotate` (drawing results); `_kernels` (compiled helpers
 shared by the modules). The names below are imported on first use.
 """
@@ -19,8 +20,8 @@ import importlib
 
 __all__ = ["process_frame", "default_config", "resolve_search_lines", "TARGETS", "VisionConfig", "TargetConfig",
            "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "LimbOptions", "FlankOptions",
-           "CalibrationOptions", "FramePrior", "VectorRecord", "CandidateResult", "TargetResult", "FrameResult",
-           "FisheyeCamera", "EquidistantCamera", "PinholeCamera", "PayloadMask", "conic_polyline"]
+           "CalibrationOptions", "EdgeHeightOptions", "FramePrior", "VectorRecord", "CandidateResult", "TargetResult",
+           "FrameResult", "FisheyeCamera", "EquidistantCamera", "PinholeCamera", "PayloadMask", "conic_polyline"]
 
 _HOME = {"process_frame": "frontend", "conic_polyline": "image_geometry", "FisheyeCamera": "camera",
          "EquidistantCamera": "camera", "PinholeCamera": "camera",

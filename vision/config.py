@@ -35,7 +35,8 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.candidates import DetectionConfig
 
 __all__ = ["TARGETS", "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "FlankOptions",
-           "CalibrationOptions", "LimbOptions", "PhaseOptions", "TargetConfig", "VisionConfig", "FramePrior",
+           "CalibrationOptions", "LimbOptions", "PhaseOptions", "EdgeHeightOptions", "TargetConfig", "VisionConfig",
+           "FramePrior",
            "default_config", "resolve_search_lines"]
 
 TARGETS = ("earth", "sun", "moon")
@@ -410,6 +411,54 @@ class PhaseOptions(_Checks):
 
 
 @dataclass(frozen=True)
+class EdgeHeightOptions(_Checks):
+    """The Earth's edge height fitted with the nadir (`vision.edge_height`; Earth only).
+
+    The height has a prior: N(``TargetConfig.atmosphere_m``, ``atmosphere_sigma_m^2``) for the
+    threshold edge, N(``LimbOptions.height_m``, ``max(limb term, limb_prior_sigma_m)^2``) for the
+    limb edge. It is a prior, not a measurement: its sigma must hold the edges of cameras the
+    defaults were not tuned on. A sigma of 0 fixes the height (no fit, no covariance term).
+
+    Attributes
+    ----------
+    estimate : fit the edge height with the direction (the cone half-angle free, as 003 §5 fits
+        the Sun's radius), the prior as a pseudo-measurement; false: the height is the prior mean
+        and its sigma enters the covariance through the tilt (``sigma^2 g g^T``).
+    limb_prior_sigma_m : 1-sigma [m] of the limb edge's height prior on an unseen camera and
+        atmosphere (the limb term of `LimbOptions` is the model's spread where the model holds).
+    constrained_ratio : the arc is said to constrain the height (``TargetResult.edge_from_arc``)
+        when the posterior variance is below this fraction (0..1] of the prior's.
+    along_sigma_m, along_L_px : the edge's height variation along the limb (the Sun's elevation
+        and the exposure change along it: the threshold edge's height varies by 1-4 km over an
+        arc on rendered frames) as a Gauss-Markov sequence of this sigma [m] and correlation
+        length [px] along the edge; it bends the arc like a change of height, so it bounds what
+        the arc can say about the height (`vision.edge_height`); on both edges (the limb edge's
+        Sun-path model holds only where its profile is the assumed one).
+    limb_gate : the limb edge is kept only when the arc's own (prior-free) height estimate is
+        within this many sigmas (the estimate's and the limb model's combined) of the limb
+        model's height ``LimbOptions.height_m``: an arc that disagrees says the limb profile is not
+        the one the model assumes (another camera, another atmosphere), and the threshold edge
+        with its wide prior is used instead. 0: always kept.
+    """
+
+    estimate: bool = True
+    limb_prior_sigma_m: float = 20e3
+    constrained_ratio: float = 0.5
+    along_sigma_m: float = 3000.0
+    along_L_px: float = 600.0
+    limb_gate: float = 3.0
+
+    def __post_init__(self):
+        if not isinstance(self.estimate, bool):
+            self._bad("estimate", "true or false")
+        self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate"))
+        if not self.along_L_px >= 1.0:
+            self._bad("along_L_px", ">= 1 px")
+        if not 0.0 < self.constrained_ratio <= 1.0:
+            self._bad("constrained_ratio", "a fraction in (0, 1]")
+
+
+@dataclass(frozen=True)
 class TargetConfig(_Checks):
     """Processing of one target (Earth, Sun or Moon): the body, what is accepted, and the options
     of each stage.
@@ -431,14 +480,15 @@ class TargetConfig(_Checks):
     atmosphere_m : effective atmosphere thickness d [m] (003 eq. (5)), 0..200 km; Earth only.
         The apparent horizon is where the limb's brightness crosses the threshold, at a tangent
         height d that varies with exposure and illumination (003 §4, 004 §3.4.3).
-    atmosphere_sigma_m : its 1-sigma uncertainty [m], added to the covariance; Earth only.
+    atmosphere_sigma_m : its 1-sigma uncertainty [m]: the sigma of the edge height's prior
+        (`EdgeHeightOptions`); Earth only.
     edge_offset_px : distance [px] from the centres of the followed (white) border pixels to the
         brightness edge, which lies between them and their dark neighbours: half a pixel. The
         Earth cone is shrunk by this angle (without it the nadir is biased by ~0.03 deg on
         rendered frames); the Sun/Moon radius absorbs it.
-    scoring, ransac, side_check, fit, limb, phase : the stages' options (`ScoringOptions`,
-        `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`, `PhaseOptions`; limb:
-        Earth only; phase: Moon only).
+    scoring, ransac, side_check, fit, limb, phase, edge : the stages' options (`ScoringOptions`,
+        `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`, `PhaseOptions`,
+        `EdgeHeightOptions`; limb and edge: Earth only; phase: Moon only).
     """
 
     enabled: bool = True
@@ -457,6 +507,7 @@ class TargetConfig(_Checks):
     fit: FitOptions = FitOptions()
     limb: LimbOptions = LimbOptions()
     phase: PhaseOptions = PhaseOptions()
+    edge: EdgeHeightOptions = EdgeHeightOptions()
 
     def __post_init__(self):
         self._ints(("min_pixels",))
@@ -485,7 +536,7 @@ class VisionConfig:
 
     earth: TargetConfig = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, atmosphere_m=45e3, atmosphere_sigma_m=7e3,
+        min_pixels=100, atmosphere_m=45e3, atmosphere_sigma_m=20e3,
         scoring=ScoringOptions(score_rays=100),
         ransac=RansacOptions(threshold_px=4.0, max_hypotheses=100, min_inlier_fraction=0.5),
         fit=FitOptions(R_px2=0.2))

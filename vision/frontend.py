@@ -52,6 +52,7 @@ Covariance terms
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -63,6 +64,7 @@ from vision.candidates import detect
 from vision.config import (TARGETS, FramePrior, TargetConfig, VisionConfig, default_config,
                            resolve_search_lines)
 from vision.covariance import direction_covariance, largest_eigenvalue
+from vision.edge_height import fit_edge_reselect
 from vision.fitting import alpha_sensitivity, fit_cone, median, reselect_inliers, subsample
 from vision.image_geometry import conic_polyline, fast_pixel_angle, gate_search_rows
 from vision.limb_refit import limb_refit, tilt_corrected_attitude
@@ -132,6 +134,8 @@ def _refit_winner(out: TargetResult, win, cand, camera, tc: TargetConfig, model)
         return None
     if model is not None:
         fit = fit_cone(H[inl], fit.alpha, fit.e_c if win.mirrored else None)
+        if tc.edge.estimate and tc.atmosphere_sigma_m > 0:
+            fit, inl = _edge_inliers(model, fit, H, J, inl, tc, step, thr, max(min_used, 20))
     else:
         fit, inl, _ = reselect_inliers(H, direction_and_radius(H[inl]), inl, thr,
                                        lambda Hi, f: direction_and_radius(Hi), 10, max(min_used, 3))
@@ -142,20 +146,94 @@ def _refit_winner(out: TargetResult, win, cand, camera, tc: TargetConfig, model)
     return uv, rays_c, J, pa, H, fit, inl, step
 
 
-def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: float, sigma_d: float):
-    """Earth: (e_c, P_c, cone alpha) of the constrained fit: 003 eq. (33) with the pixel noise,
-    plus ``sigma_d^2 g g^T`` for the uncertain effective atmosphere thickness, ``g = de/dd`` =
-    de/dalpha * dalpha/dd (`alpha_sensitivity`, `LimbModel.alpha_rate`) mapped into the camera.
-    The cone alpha is the median angle of the inlier rays about e_c (the visible horizon's
-    cone, for its conic type)."""
+def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min_inliers: int):
+    """The threshold edge's inliers re-selected on the cone of the joint direction and edge-height
+    fit (`vision.edge_height.fit_edge_reselect`, prior N(atmosphere_m, atmosphere_sigma_m^2)): the
+    fixed-height cone keeps only part of a long arc when the edge sits elsewhere. (fit, inliers);
+    the fit's direction and alpha those of the joint fit."""
+    ef, inl2 = fit_edge_reselect(model, tc.atmosphere_m, H, J, inl, fit.e_c, tc.atmosphere_m,
+                                 tc.atmosphere_sigma_m, tc.fit.R_px2, max(1.0, tc.fit.L_px / step), thr,
+                                 min_inliers, tc.edge.constrained_ratio, along_sigma_m=tc.edge.along_sigma_m,
+                                 along_L=max(1.0, tc.edge.along_L_px / step))
+    if ef is None:
+        return fit, inl
+    return dataclasses.replace(fit, e_c=ef.e_fit, n=ef.e_fit, alpha=ef.alpha, rhs=math.cos(ef.alpha),
+                               residual=ef.residual), inl2
+
+
+def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: float, sig_p: float, d0: float,
+                      thr: float, along_m: float):
+    """Earth: (e_c, P_c, cone alpha, fit alpha, edge, inliers) of the final fit at edge height
+    ``d0`` [m] (the height ``model`` is built at). With ``edge.estimate`` the height is fitted
+    with the direction, the prior N(d0, sig_p^2) as a pseudo-measurement, the inliers re-selected
+    on the fitted cone (``thr`` [rad]; `vision.edge_height.fit_edge_reselect`), and P_c is its
+    marginal direction covariance; else (or when that fit is singular) 003 eq. (33) with the
+    pixel noise plus ``sig_p^2 g g^T``, ``g = de/dd`` = de/dalpha * dalpha/dd
+    (`alpha_sensitivity`, `LimbModel.alpha_rate`) mapped into the camera. ``edge`` = (height
+    [m], sigma [m], (3,) covariance with e_c [rad m], from the arc, the arc's own height [m] and its
+    sigma [m]); ``along_m``: the edge's height variation along the limb [m]. The cone alpha is the
+    median angle of the inlier rays about e_c (the visible horizon's cone, for its conic type)."""
+    if tc.edge.estimate and sig_p > 0:
+        ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, d0, sig_p, tc.fit.R_px2, L_eff, thr,
+                                     max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio,
+                                     along_sigma_m=along_m, along_L=L_eff * tc.edge.along_L_px / tc.fit.L_px)
+        if ef is not None:
+            e_c = model.to_camera(ef.e_fit)
+            edge = (ef.height_m, ef.sigma_m, ef.cov_c, ef.from_arc, ef.data_height_m, ef.data_sigma_m)
+            return e_c, ef.P_c, median(angle_residuals(rays_c[inl2], e_c, 0.0)), ef.alpha, edge, inl2
     e_c = model.to_camera(fit.e_c)
     P = direction_covariance(rays_c[inl], J[inl], e_c, tc.fit.R_px2, L_eff, method="constrained").P_c
-    if sigma_d > 0:
+    g = np.zeros(3)
+    if sig_p > 0:
         g_fit = alpha_sensitivity(H[inl], fit.e_c, fit.alpha) * model.alpha_rate
         g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
         g /= 1e-3
-        P = P + sigma_d**2 * np.outer(g, g)
-    return e_c, P, median(angle_residuals(rays_c[inl], e_c, 0.0))
+        P = P + sig_p**2 * np.outer(g, g)
+    edge = (d0, sig_p, sig_p**2 * g, False, math.nan, math.inf)
+    return e_c, P, median(angle_residuals(rays_c[inl], e_c, 0.0)), fit.alpha, edge, inl
+
+
+def _limb_consistent(ef, sigma_l: float, tc: TargetConfig) -> bool:
+    """The limb edge's arc agrees with the limb model's height (``edge.limb_gate``, `vision.config`):
+    its own height estimate within limb_gate combined sigmas of ``limb.height_m``, or the arc
+    too short to tell."""
+    h, s = ef[4], ef[5]
+    if tc.edge.limb_gate <= 0 or not (math.isfinite(h) and math.isfinite(s)):
+        return True
+    return abs(h - tc.limb.height_m) <= tc.edge.limb_gate * math.hypot(s, sigma_l)
+
+
+def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb, w, L_eff: float, timings):
+    """Earth after the refit ``w`` (`_refit_winner`): the limb edge (`limb_refit`) when the prior
+    allows it and its arc agrees with the limb model (`_limb_consistent`), else the threshold
+    edge; each with its edge height fitted and the covariance (`_earth_covariance`). Returns
+    (e_c, P_c, alpha, (height, sigma), uv, inliers, fit) and fills ``out``'s limb and edge fields."""
+    uv, rays_c, J, pa, H, fit, inl, step = w
+    t0 = time.perf_counter()
+    pa_med = median(pa)
+    if limb is not None and tc.limb.fraction > 0:
+        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
+        timings["earth.limb"] = time.perf_counter() - t0
+        if lr is not None:
+            model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
+            res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
+                                    max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
+                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m)
+            if _limb_consistent(res[4], sigma_l, tc):
+                out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr[7:]
+                out.limb_edge = True
+                return _earth_out(out, res, uv_l, fit_l)
+            out.limb_rejected_m = float(res[4][4])
+    res = _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, tc.atmosphere_m,
+                            tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m)
+    return _earth_out(out, res, uv, fit)
+
+
+def _earth_out(out: TargetResult, res, uv, fit):
+    """`_earth_final`'s return value from `_earth_covariance`'s ``res``; fills ``out``."""
+    e_c, P, out.cone_alpha, alpha, ef, inl = res
+    out.edge_cov_c, out.edge_from_arc = ef[2], ef[3]
+    return e_c, P, alpha, ef[:2], uv, inl, fit
 
 
 def _baseline_fit(out: TargetResult, camera, cand, timings, name):
@@ -203,19 +281,12 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     t3 = time.perf_counter()
     timings[f"{name}.refit"] = t3 - t2
     L_eff = max(1.0, tc.fit.L_px / step)   # correlation length in steps of the subsampled edge
-    sigma_d = tc.atmosphere_sigma_m
-    if model is not None and limb is not None and tc.limb.fraction > 0:
-        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
-        t_limb = time.perf_counter()
-        timings["earth.limb"] = t_limb - t3
-        t3 = t_limb
-        if lr is not None:
-            model, fit, uv, rays_c, J, inl, sigma_d, out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr
-            H = model.to_fit(rays_c)
-            out.limb_edge = True
+    alpha = float(fit.alpha)
+    edge = (math.nan, math.nan)
     if model is not None:
-        e_c, P, out.cone_alpha = _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, sigma_d)
+        e_c, P, alpha, edge, uv, inl, fit = _earth_final(out, image, camera, tc, model, limb, w, L_eff, timings)
         conic = conic_type(e_c, out.cone_alpha)[1]
+        t3 += timings.get("earth.limb", 0.0)
     else:
         e_c, conic = fit.e_c, fit.conic
         P = direction_covariance(rays_c[inl], J[inl], fit.n, tc.fit.R_px2, L_eff, method="linear").P_c
@@ -226,8 +297,8 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     out.points = uv
     out.inlier_mask = inl
     out.record = VectorRecord(int(ids[0]), int(ids[1]), name, e_c, P, lam * np.eye(3), float(fit.residual),
-                              int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, float(fit.alpha),
-                              model.kind if model is not None else "")
+                              int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, alpha,
+                              model.kind if model is not None else "", float(edge[0]), float(edge[1]))
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out

@@ -26,6 +26,10 @@ class VectorRecord:
     conic_type : "ellipse" / "hyperbola" of the fitted cone in the image (003 Table 1).
     alpha : cone half-angle [rad] (Earth: in the fit frame of the limb model; Sun/Moon: estimated).
     model : "ellipsoid", "sphere" (Earth) or "" (Sun/Moon).
+    edge_height_m, edge_height_sigma_m : Earth: the effective height [m] of the edge the fit used
+        (`TargetResult.limb_path`: the threshold edge, or the limb edge at the Sun overhead) and
+        its 1-sigma, fitted with the direction where the arc constrains it, else the prior's
+        (`vision.edge_height`); NaN for the Sun/Moon.
     """
 
     t_ns: int
@@ -40,6 +44,8 @@ class VectorRecord:
     conic_type: str
     alpha: float
     model: str = ""
+    edge_height_m: float = math.nan
+    edge_height_sigma_m: float = math.nan
 
     @property
     def sigma_deg(self) -> float:
@@ -82,6 +88,10 @@ class TargetResult:
     # with d calibrated on the usable limb profiles), "" (threshold edge with atmosphere_m)
     limb_d_m: float = math.nan  # effective thickness of the threshold edge [m]: calibrated d_thr, or
     # the mean height fitted on the profile flanks
+    edge_cov_c: np.ndarray | None = None  # Earth: (3,) covariance of e_c with the edge height [rad m]
+    edge_from_arc: bool = False  # Earth: the arc constrains the edge height (vision.edge_height)
+    limb_rejected_m: float = math.nan  # Earth: the limb edge's own height [m] when it disagreed with
+    # the limb model (EdgeHeightOptions.limb_gate) and the threshold edge was used instead
     cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the
     # visible horizon's cone (its conic type; drawn by the replay's overlay)
 

@@ -53,7 +53,8 @@ FLAT_EARTH = 47   # 1: Earth radiance 1 everywhere (clean geometric mode)
 R_MEAN = 48
 WB0 = 49          # white-balance gains R, G, B (3 values)
 TT_INV_DM = 52    # 1 / air-mass step of the transmission table
-N_PARAMS = 53
+LIMB_SHIFT = 53   # the limb's air lifted by this height [m] (RenderOptions.limb_shift_m)
+N_PARAMS = 54
 
 #: slope [1/rad] of the Moon's surface phase function exp(-k g): with Lommel-Seeliger it gives the
 #: disc-integrated quarter Moon (g = 90 deg) ~2.6 mag below the full Moon, as observed
@@ -271,13 +272,13 @@ def _scene(rx, ry, rz, P, cmap, detail, ttab):
             px, py, pz = ox + tc * qx, oy + tc * qy, oz + tc * qz
             rho = np.sqrt(px * px + py * py + pz * pz)
             rloc = np.sqrt((A * px) ** 2 + (A * py) ** 2 + (B * pz) ** 2) / rho
-            h_t = (rho - 1.0) * rloc
+            h_t = (rho - 1.0) * rloc - P[LIMB_SHIFT]
             mt = 2.0 * chmax * np.exp(-h_t / H)
             nx, ny, nz = px / A, py / A, pz / B
             inv = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
             mu_s = (nx * sx + ny * sy + nz * sz) * inv
         else:  # looking up and away: the column above the camera
-            h_t = P[H_CAM]
+            h_t = P[H_CAM] - P[LIMB_SHIFT]
             nx, ny, nz = ox / A, oy / A, oz / B
             inv = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
             mu_up = (nx * dx + ny * dy + nz * dz) * inv

@@ -96,7 +96,10 @@ class RenderOptions:
 
     Atmosphere: ``atmosphere_scale_height_m`` H, ``atmosphere_tau`` vertical optical depth (R, G, B),
     ``atmosphere_gain`` multiplies the scattered radiance, ``aerosol_weight``/``aerosol_g`` the
-    Henyey-Greenstein part of the phase function. Clouds: ``cloud_cover`` fraction in [0, 1],
+    Henyey-Greenstein part of the phase function; ``limb_shift_m`` lifts the air of the limb (rays
+    that miss the Earth) by this height [m] (negative: lowers it), which moves the limb's
+    brightness edge by as much without changing its shape (model-mismatch renders: an edge the
+    front end does not assume; the ground's airlight is unchanged). Clouds: ``cloud_cover`` fraction in [0, 1],
     ``cloud_map_size`` texels per cube face, ``cloud_detail`` amplitude of the fine noise,
     ``detail_period_m`` its repeat length. Sun: ``sun_disc``, ``sun_bloom``, ``sun_glare``,
     ``lens_flare`` (ghosts and starburst). ``payload_mask``: polygon in image fractions or None;
@@ -113,6 +116,7 @@ class RenderOptions:
     atmosphere_gain: float = 1.0
     aerosol_weight: float = 0.25
     aerosol_g: float = 0.75
+    limb_shift_m: float = 0.0
     clouds: bool = True
     cloud_cover: float = 0.45
     cloud_map_size: int = 1024
@@ -149,6 +153,8 @@ class RenderOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 bad(name, "a finite number > 0")
+        if not (isinstance(self.limb_shift_m, (int, float)) and abs(self.limb_shift_m) <= 100e3):
+            bad("limb_shift_m", "a height shift [m] within +-100 km")
         for name in ("atmosphere_gain", "read_noise_e", "cloud_detail", "exposure_time_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -262,13 +268,14 @@ def ray_ellipsoid(x_e: np.ndarray, d_e: np.ndarray) -> tuple[np.ndarray, np.ndar
 def limb_profile(h_t: np.ndarray, options: RenderOptions | None = None, *,
                  sun_elevation_deg: float = 90.0, scattering_deg: float = 90.0) -> np.ndarray:
     """Radiance (..., 3) of the sunlit limb at tangent heights ``h_t`` [m] (the model above):
-    ``P(gamma)/4 * gain * (1 - exp(-tau m(h_t))) * T_sun`` with ``m = 2 sqrt(pi R / 2H) e^(-h_t/H)``.
+    ``P(gamma)/4 * gain * (1 - exp(-tau m(h_t))) * T_sun`` with ``m = 2 sqrt(pi R / 2H) e^(-h/H)``,
+    ``h = h_t - limb_shift_m``.
 
     For a binarisation threshold ``L_thr`` on this curve, the height where it is crossed is the
     effective atmosphere thickness ``d`` of 003 eq. (5) (before exposure and noise).
     """
     o = options or RenderOptions()
-    h = np.asarray(h_t, dtype=float)[..., None]
+    h = np.asarray(h_t, dtype=float)[..., None] - o.limb_shift_m
     H = o.atmosphere_scale_height_m
     chmax = math.sqrt(math.pi * earth.R_MEAN / (2.0 * H))
     tau = np.asarray(o.atmosphere_tau)
@@ -571,6 +578,7 @@ def _params(cam_h, R, x, s_dir, m_dir, m_cos, o: RenderOptions, sun_on: float, b
     P[K.R_MEAN] = earth.R_MEAN
     P[K.WB0:K.WB0 + 3] = wb
     P[K.TT_INV_DM] = 1.0 / _TT_DM
+    P[K.LIMB_SHIFT] = o.limb_shift_m
     return P
 
 

@@ -1,0 +1,64 @@
+"""Edge-height model-mismatch study (scenarios/study/edge_mismatch.py) on rendered ATEK frames.
+
+Truth: the renderer's geocentric nadir per frame and the tangent heights (truth pose) of the edge
+pixels the fit used. The fast test runs three frames at the default edge height and at 0 km; the
+full study (48 frames, five heights, two limb profiles) is `-m slow`.
+"""
+import math
+
+import pytest
+
+from scenarios.study import edge_mismatch as em
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    from scenarios.sim import render
+    from vision import mask as vmask
+    from vision.config import default_config
+
+    fl, frames = em.atek_frames(3, t0=150.0, t1=300.0)
+    cam = fl.cameras[0].camera
+    mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
+    return frames, cam, mask, default_config(cam.fx), tmp_path_factory.mktemp("mismatch")
+
+
+def test_default_height_frames_are_accurate_and_contained(setup):
+    """At the height the defaults assume the front end finds the horizon on every frame, within
+    0.2 deg (the coast's clean frames are at 0.02-0.15 deg) and inside 3 sigma, and reports the
+    edge height it used within 3 of its sigmas of the edge pixels' true height."""
+    frames, cam, mask, cfg, cache = setup
+    out = em.run_case(em.Case(em.NOMINAL_EDGE_M), frames, cam, mask, cfg, cache)
+    assert all(o.found for o in out)
+    for o in out:
+        assert o.err_deg < 0.2 and o.err_deg <= o.sigma3_deg, o
+        if math.isfinite(o.edge_truth_m):
+            assert abs(o.edge_m - o.edge_truth_m) <= 3 * o.edge_sigma_m, o
+    s = em.summarise(em.Case(em.NOMINAL_EDGE_M), out)
+    assert s["found"] == 3 and s["containment"] == 1.0
+
+
+def test_low_edge_moves_the_estimated_height(setup):
+    """Rendered with the edge at 0 km (45 km below the default), the estimated edge height of the
+    frames falls with it: its median over the frames is at least 15 km below the default's (the
+    edge the fit uses moves by the rendered shift; the prior alone would keep it at 45 km or the
+    limb edge's 18.3 km)."""
+    frames, cam, mask, cfg, cache = setup
+    lo = em.run_case(em.Case(0.0), frames, cam, mask, cfg, cache)
+    hi = em.run_case(em.Case(em.NOMINAL_EDGE_M), frames, cam, mask, cfg, cache)
+    h_lo = sorted(o.edge_m for o in lo if o.found)
+    h_hi = sorted(o.edge_m for o in hi if o.found)
+    assert len(h_lo) >= 2
+    assert h_lo[len(h_lo) // 2] < h_hi[len(h_hi) // 2] - 15e3, (h_lo, h_hi)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="containment 0.83-0.96 at 0-10 km: twilight frames of camera 0 whose "
+                   "threshold edge follows a dark band on the ground instead of the limb (a wrong edge, "
+                   "not a wrong height); strict: it reports when the acceptance is met")
+def test_full_study_containment():
+    """The acceptance: for every rendered edge height 0-60 km and both limb profiles, per-frame
+    3-sigma containment >= 97 % with the defaults."""
+    rows = em.run_study(48)
+    bad = [(r["case"], r["containment"]) for r in rows if not r["containment"] >= 0.97]
+    assert not bad, bad
