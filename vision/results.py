@@ -10,7 +10,7 @@ import numpy as np
 from vision.candidates import Detection
 from vision.nadir import ConeFit
 
-__all__ = ["VectorRecord", "CandidateResult", "TargetResult", "FrameResult", "earth_edge_height"]
+__all__ = ["VectorRecord", "CandidateResult", "TargetResult", "FrameResult"]
 
 
 @dataclass(frozen=True)
@@ -112,19 +112,3 @@ class FrameResult:
             if r.target == target:
                 return r
         return None
-
-
-def earth_edge_height(earth: TargetResult, tc) -> tuple[float, float]:
-    """(height [m], 1-sigma [m]) of the Earth's edge that the nadir of ``earth`` was fitted with,
-    ``tc`` the Earth's `vision.config.TargetConfig`: the fraction-of-peak limb edge at
-    ``limb.height_m`` plus its mean Sun-path shift (sigma ``limb.height_sigma_m``); the threshold
-    edge with heights fitted on the profile flanks or calibrated on the usable profiles
-    (``limb_d_m``, sigma ``limb.flank.sigma_m`` / ``limb.calibrate.sigma_m``); else the assumed
-    effective atmosphere thickness ``atmosphere_m`` (sigma ``atmosphere_sigma_m``)."""
-    if earth.limb_edge and earth.limb_path == "limb":
-        return tc.limb.height_m + earth.limb_shift_m, tc.limb.height_sigma_m
-    if earth.limb_edge and earth.limb_path == "flank":
-        return earth.limb_d_m, tc.limb.flank.sigma_m
-    if earth.limb_edge and earth.limb_path == "calibrated":
-        return earth.limb_d_m, tc.limb.calibrate.sigma_m
-    return tc.atmosphere_m, tc.atmosphere_sigma_m

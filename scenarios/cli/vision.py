@@ -70,17 +70,16 @@ def _target_dict(r, cov_c: bool = True) -> dict:
 def image_entry(name: str, res, cfg) -> dict:
     """One image's ``--json`` object: ``{"image", "earth", "sun", "moon"}`` (each target's
     vector and covariance, or null with its reason in ``"reasons"``; the Earth with the edge
-    height its nadir was fitted with, `vision.results.earth_edge_height`), plus the model, the
-    vector records and the stage timings."""
-    from vision.results import earth_edge_height
-
+    height fitted with its nadir, `VectorRecord.edge_height_m`), plus the model, the vector
+    records and the stage timings."""
     out = {"image": name}
     for t in ("earth", "sun", "moon"):
         r = res.record(t)
         out[t] = None if r is None else _target_dict(r)
     if out["earth"] is not None:
-        h, sig = earth_edge_height(res.targets["earth"], cfg.earth)
-        out["earth"].update(model=res.model, edge_height_m=float(h), edge_height_sigma_m=float(sig))
+        r = res.record("earth")
+        out["earth"].update(model=res.model, edge_height_m=float(r.edge_height_m),
+                            edge_height_sigma_m=float(r.edge_height_sigma_m))
     out["reasons"] = dict(res.reasons)
     for t in ("earth", "sun", "moon"):
         if not cfg.target(t).enabled:
