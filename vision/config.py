@@ -424,6 +424,11 @@ class EdgeHeightOptions(_Checks):
     estimate : fit the edge height with the direction (the cone half-angle free, as 003 §5 fits
         the Sun's radius), the prior as a pseudo-measurement; false: the height is the prior mean
         and its sigma enters the covariance through the tilt (``sigma^2 g g^T``).
+    start_m : height [m] of the threshold edge's cone with which the candidates are scored
+        (RANSAC, `vision.scoring`) and from which the joint fit starts, when the height is
+        estimated; NaN: ``atmosphere_m``. The Earth default is 45 km, where the threshold edge of
+        the renderer's limb sits, on whose frames the scoring is tuned; the fit then moves to the
+        height the arc and the prior N(``atmosphere_m``, ``atmosphere_sigma_m^2``) give.
     limb_prior_sigma_m : 1-sigma [m] of the limb edge's height prior on an unseen camera and
         atmosphere (the limb term of `LimbOptions` is the model's spread where the model holds).
     constrained_ratio : the arc is said to constrain the height (``TargetResult.edge_from_arc``)
@@ -442,6 +447,7 @@ class EdgeHeightOptions(_Checks):
     """
 
     estimate: bool = True
+    start_m: float = math.nan
     limb_prior_sigma_m: float = 20e3
     constrained_ratio: float = 0.5
     along_sigma_m: float = 3000.0
@@ -452,6 +458,8 @@ class EdgeHeightOptions(_Checks):
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
         self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate"))
+        if not (math.isnan(self.start_m) or 0.0 <= self.start_m < 200e3):
+            self._bad("start_m", "NaN (atmosphere_m) or 0 <= h < 200 km")
         if not self.along_L_px >= 1.0:
             self._bad("along_L_px", ">= 1 px")
         if not 0.0 < self.constrained_ratio <= 1.0:
@@ -536,10 +544,10 @@ class VisionConfig:
 
     earth: TargetConfig = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, atmosphere_m=45e3, atmosphere_sigma_m=20e3,
+        min_pixels=100, atmosphere_m=15e3, atmosphere_sigma_m=20e3,
         scoring=ScoringOptions(score_rays=100),
         ransac=RansacOptions(threshold_px=4.0, max_hypotheses=100, min_inlier_fraction=0.5),
-        fit=FitOptions(R_px2=0.2))
+        fit=FitOptions(R_px2=0.2), edge=EdgeHeightOptions(start_m=45e3))
     sun: TargetConfig = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(alpha_min_deg=0.5), 12),
         min_pixels=12, max_residual=1e-6, alpha_max_deg=4.0,

@@ -148,10 +148,14 @@ def _refit_winner(out: TargetResult, win, cand, camera, tc: TargetConfig, model)
 
 def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min_inliers: int):
     """The threshold edge's inliers re-selected on the cone of the joint direction and edge-height
-    fit (`vision.edge_height.fit_edge_reselect`, prior N(atmosphere_m, atmosphere_sigma_m^2)): the
-    fixed-height cone keeps only part of a long arc when the edge sits elsewhere. (fit, inliers);
+    fit (`vision.edge_height.fit_edge_reselect`) with the prior centred on the height the
+    candidates were scored at (`model_height_m`, sigma ``atmosphere_sigma_m``): the fixed-height
+    cone keeps only part of a long arc when the edge sits elsewhere. This selection feeds the limb
+    edge (`limb_refit`), whose height has its own prior; the threshold edge's final fit
+    (`_earth_covariance`) takes the prior N(atmosphere_m, atmosphere_sigma_m^2). (fit, inliers);
     the fit's direction and alpha those of the joint fit."""
-    ef, inl2 = fit_edge_reselect(model, tc.atmosphere_m, H, J, inl, fit.e_c, tc.atmosphere_m,
+    d0 = model_height_m(tc)
+    ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, d0,
                                  tc.atmosphere_sigma_m, tc.fit.R_px2, max(1.0, tc.fit.L_px / step), thr,
                                  min_inliers, tc.edge.constrained_ratio, along_sigma_m=tc.edge.along_sigma_m,
                                  along_L=max(1.0, tc.edge.along_L_px / step))
@@ -162,7 +166,7 @@ def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min
 
 
 def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: float, sig_p: float, d0: float,
-                      thr: float, along_m: float):
+                      thr: float, along_m: float, prior_m: float):
     """Earth: (e_c, P_c, cone alpha, fit alpha, edge, inliers) of the final fit at edge height
     ``d0`` [m] (the height ``model`` is built at). With ``edge.estimate`` the height is fitted
     with the direction, the prior N(d0, sig_p^2) as a pseudo-measurement, the inliers re-selected
@@ -171,10 +175,11 @@ def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: fl
     pixel noise plus ``sig_p^2 g g^T``, ``g = de/dd`` = de/dalpha * dalpha/dd
     (`alpha_sensitivity`, `LimbModel.alpha_rate`) mapped into the camera. ``edge`` = (height
     [m], sigma [m], (3,) covariance with e_c [rad m], from the arc, the arc's own height [m] and its
-    sigma [m]); ``along_m``: the edge's height variation along the limb [m]. The cone alpha is the
-    median angle of the inlier rays about e_c (the visible horizon's cone, for its conic type)."""
+    sigma [m]); ``along_m``: the edge's height variation along the limb [m]; ``prior_m``: the
+    prior's mean [m] (``d0`` when the height is not estimated). The cone alpha is the median angle
+    of the inlier rays about e_c (the visible horizon's cone, for its conic type)."""
     if tc.edge.estimate and sig_p > 0:
-        ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, d0, sig_p, tc.fit.R_px2, L_eff, thr,
+        ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, prior_m, sig_p, tc.fit.R_px2, L_eff, thr,
                                      max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio,
                                      along_sigma_m=along_m, along_L=L_eff * tc.edge.along_L_px / tc.fit.L_px)
         if ef is not None:
@@ -218,14 +223,14 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
             model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
-                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m)
+                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m, tc.limb.height_m)
             if _limb_consistent(res[4], sigma_l, tc):
                 out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr[7:]
                 out.limb_edge = True
                 return _earth_out(out, res, uv_l, fit_l)
             out.limb_rejected_m = float(res[4][4])
-    res = _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, tc.atmosphere_m,
-                            tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m)
+    res = _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
+                            tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m)
     return _earth_out(out, res, uv, fit)
 
 
@@ -304,11 +309,20 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     return out
 
 
+def model_height_m(tc: TargetConfig) -> float:
+    """Edge height [m] the Earth's limb model is built at: the candidates are scored with its
+    cone and the joint fit of the height starts there (``edge.start_m`` when the height is
+    estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is)."""
+    if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m):
+        return tc.edge.start_m
+    return tc.atmosphere_m
+
+
 def _earth_model(config: VisionConfig, prior: FramePrior | None, height_m: float | None):
-    """The Earth's limb model (`vision.oblate`, d = ``earth.atmosphere_m``): the ellipsoid with a
+    """The Earth's limb model (`vision.oblate`, d = `model_height_m`): the ellipsoid with a
     prior giving x_e and R_ec, else the sphere at ``height_m`` of radius ``sphere_radius_m``,
     the Gaussian radius at ``prior.lat``, or ``nav.earth.R_MEAN`` (003 §2.8)."""
-    d = config.earth.atmosphere_m
+    d = model_height_m(config.earth)
     if prior is not None and prior.x_e is not None and prior.R_ec is not None:
         return ellipsoid_model(prior.x_e, prior.R_ec, d)
     if height_m is None:
