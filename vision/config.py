@@ -444,6 +444,11 @@ class EdgeHeightOptions(_Checks):
         model's height ``LimbOptions.height_m``: an arc that disagrees says the limb profile is not
         the one the model assumes (another camera, another atmosphere), and the threshold edge
         with its wide prior is used instead. 0: always kept.
+    cross_check_ratio : where the arc's own height sigma exceeds this many limb-prior sigmas (a
+        narrow field of view: ~85 km on a 25 deg pinhole at 500 km; the ATEK fisheye's arcs stay
+        below 3 x 20 km, some not below 20 km) the gate above cannot tell, and the limb edge is kept only when its nadir
+        agrees with the threshold edge's within ``limb_gate`` sigmas of their difference
+        (covariance the sum of theirs); else the threshold edge is used. 0: no cross-check.
     """
 
     estimate: bool = True
@@ -453,11 +458,12 @@ class EdgeHeightOptions(_Checks):
     along_sigma_m: float = 3000.0
     along_L_px: float = 600.0
     limb_gate: float = 3.0
+    cross_check_ratio: float = 3.0
 
     def __post_init__(self):
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
-        self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate"))
+        self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate", "cross_check_ratio"))
         if not (math.isnan(self.start_m) or 0.0 <= self.start_m < 200e3):
             self._bad("start_m", "NaN (atmosphere_m) or 0 <= h < 200 km")
         if not self.along_L_px >= 1.0:

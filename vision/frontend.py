@@ -14,8 +14,9 @@ Pipeline per target (`process_frame`; options: `vision.config`)
    directly; when more than ``scoring.direct_outlier_fraction`` of them miss the cone by
    ``ransac.threshold_px`` (converted per ray to an angle, `vision.ransac.pixel_angle`), the
    pre-verified RANSAC cone fit (`vision.ransac.ransac_cone`, 000 §2.3) runs instead. Earth:
-   known alpha from the height (prior) and the effective atmosphere thickness d (003 eq. (5)),
-   in the fit frame of the limb model (`vision.oblate`). Sun/Moon: alpha estimated (003 §5).
+   known alpha from the height (prior) and the effective atmosphere thickness d (003 eq. (5);
+   ``edge.start_m`` when the edge height is estimated, `model_height_m`), in the fit frame of
+   the limb model (`vision.oblate`). Sun/Moon: alpha estimated (003 §5).
 3. Acceptance per candidate, each failure giving a reason: enough pixels and inliers, residual
    (mean squared angular distance of the inliers from the cone, `vision.nadir.angle_residual`)
    below ``max_residual`` (003 §7.3, re-derived in `vision.config`), Sun/Moon apparent radius
@@ -224,14 +225,47 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
                                     tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m, tc.limb.height_m)
-            if _limb_consistent(res[4], sigma_l, tc):
+            res_t = None
+            if _limb_consistent(res[4], sigma_l, tc) and _limb_checked(res[4], max(sigma_l, tc.edge.limb_prior_sigma_m), tc):
+                res_t = _threshold_covariance(model, fit, w, tc, L_eff, pa_med)
+            if _limb_consistent(res[4], sigma_l, tc) and _edges_agree(res, res_t, tc):
                 out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr[7:]
                 out.limb_edge = True
                 return _earth_out(out, res, uv_l, fit_l)
             out.limb_rejected_m = float(res[4][4])
-    res = _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
-                            tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m)
-    return _earth_out(out, res, uv, fit)
+            if res_t is not None:
+                return _earth_out(out, res_t, uv, fit)
+    return _earth_out(out, _threshold_covariance(model, fit, w, tc, L_eff, pa_med), uv, fit)
+
+
+def _threshold_covariance(model, fit, w, tc: TargetConfig, L_eff: float, pa_med: float):
+    """`_earth_covariance` of the threshold edge (the refit ``w``), prior N(atmosphere_m, atmosphere_sigma_m^2)."""
+    _, rays_c, J, _, H, _, inl, _ = w
+    return _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
+                             tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m)
+
+
+def _limb_checked(ef, sigma_p: float, tc: TargetConfig) -> bool:
+    """The arc cannot check the limb model's height (`_limb_consistent` is inconclusive): its own
+    height sigma exceeds ``edge.cross_check_ratio`` times the limb prior's ``sigma_p`` [m] (a
+    narrow field of view), so the limb edge is checked against the threshold edge instead
+    (`_edges_agree`). An arc that was not fitted for its height (``edge.estimate`` false: sigma
+    inf) is not checked."""
+    s = ef[5]
+    return tc.edge.limb_gate > 0 and tc.edge.cross_check_ratio > 0 and tc.edge.cross_check_ratio * sigma_p < s < math.inf
+
+
+def _edges_agree(res_l, res_t, tc: TargetConfig) -> bool:
+    """The limb edge's nadir and the threshold edge's (``res_*`` from `_earth_covariance`; None:
+    not compared) within ``edge.limb_gate`` sigmas of their difference, covariance the sum of
+    theirs (independent height priors: the limb model's and the threshold edge's). The limb edge's
+    per-pixel heights (flank, calibration) come from a limb profile model that an unseen
+    atmosphere or camera may not follow; where the arc cannot check them, the threshold edge can."""
+    if res_t is None:
+        return True
+    d = res_l[0] - res_t[0]
+    m2 = float(d @ np.linalg.pinv(res_l[1] + res_t[1], rcond=1e-10, hermitian=True) @ d)
+    return m2 <= tc.edge.limb_gate**2
 
 
 def _earth_out(out: TargetResult, res, uv, fit):
