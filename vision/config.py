@@ -493,7 +493,9 @@ class TargetConfig(_Checks):
         a few degrees.
     atmosphere_m : effective atmosphere thickness d [m] (003 eq. (5)), 0..200 km; Earth only.
         The apparent horizon is where the limb's brightness crosses the threshold, at a tangent
-        height d that varies with exposure and illumination (003 §4, 004 §3.4.3).
+        height d (of the edge pixels' straight lines of sight above the ellipsoid) that varies
+        with exposure and illumination (003 §4, 004 §3.4.3): the mean of the edge height's prior
+        (`EdgeHeightOptions`; the fixed height when it is not estimated).
     atmosphere_sigma_m : its 1-sigma uncertainty [m]: the sigma of the edge height's prior
         (`EdgeHeightOptions`); Earth only.
     edge_offset_px : distance [px] from the centres of the followed (white) border pixels to the
@@ -537,8 +539,9 @@ class TargetConfig(_Checks):
 class VisionConfig:
     """Front-end configuration: one `TargetConfig` per target, the Earth-radius fallback.
 
-    The defaults are those of the ATEK-like cameras: Earth with the threshold edge at d = 45 km
-    measured on rendered frames and the fraction-of-peak limb edge; the Sun saturated (threshold
+    The defaults are those of the ATEK-like cameras: Earth with the threshold edge's height prior
+    15 +- 20 km (real orbital photographs 0-10 km, the renderer's 45 km; candidates scored at
+    45 km) and the fraction-of-peak limb edge; the Sun saturated (threshold
     250, 003 §5) and searched on lines spaced for 0.5 deg (`resolve_search_lines`); the Moon off
     (rarely in view in the ATEK flight; enable per scenario or ``--moon``), processed phase-aware
     (`PhaseOptions`, `vision.moon`) with the pixel noise of its threshold edge (R = 0.1 px^2,
