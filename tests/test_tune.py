@@ -138,3 +138,24 @@ def test_missing_measurements_named(coast):
     assert "no accepted sun measurement" in why["vector_white_sun"]
     with pytest.raises(ValueError, match="unknown parameter 'nonsense'"):
         available(["nonsense"], base_tuning(), set())
+
+
+@pytest.mark.slow
+def test_tune_coverage_20_draws(coast):
+    """20 draws whose true vector white noise, Gauss-Markov scale and GPS noise scale are drawn
+    log-uniformly x0.3..x3 away from the prior: every identified parameter within 30 % of the
+    truth, and its standard error covers its error at 3 sigma in >= 90 % of the cases (the
+    issue's acceptance; a correct standard error covers 99.7 %)."""
+    rng = np.random.default_rng(2024)
+    rels, covers = [], []
+    for k in range(20):
+        f = np.exp(rng.uniform(math.log(0.3), math.log(3.0), 3))
+        truth = {"vector_white_hor": f[0] * PRIOR_WHITE, "vector_cov_scale_hor": f[1], "gps_noise_scale": f[2]}
+        res = tune(draw(coast, 100 + k, truth["vector_white_hor"], f[1], f[2]), base_tuning(), list(truth))
+        rel, cover = check_recovery(res, truth)
+        print(k, {n: f"{100 * v:.1f} %" for n, v in rel.items()}, cover)
+        rels += list(rel.values())
+        covers += list(cover.values())
+    print(f"max relative error {100 * max(rels):.1f} %, covered {np.mean(covers):.2f} of {len(covers)}")
+    assert max(rels) < 0.30
+    assert np.mean(covers) >= 0.90
