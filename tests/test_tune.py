@@ -159,3 +159,34 @@ def test_tune_coverage_20_draws(coast):
     print(f"max relative error {100 * max(rels):.1f} %, covered {np.mean(covers):.2f} of {len(covers)}")
     assert max(rels) < 0.30
     assert np.mean(covers) >= 0.90
+
+
+def test_iterated_vector_update_reaches_the_map_point(coast):
+    """Error-free vectors, a 15 deg initial attitude error (10 deg sigma per axis, mountings
+    known): the horizons of the first epochs leave the rotation about the nadir; the first epoch
+    with a Sun vector then corrects ~11 deg in one update, where the one-step (linearised) update
+    leaves an error of second order in the correction (measured 0.07 deg). Relinearising about
+    the updated state (the iterated EKF, 3 Gauss-Newton steps) removes it down to the prior's
+    pull (measured 0.007 deg); the test asks a factor 3."""
+    from nav.navigator import ImuData, InitialState, run
+    from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+    from nav.tuning import StateGroupTuning
+    from tests.test_navigator import attitude_errors
+    fi = flight_inputs(coast, 60.0, seed=3, noise=False)
+    i0 = truth_init(fi)
+    q0 = matrix_to_quat(rotvec_to_matrix(np.radians([10.0, -8.0, 9.0])) @ quat_to_matrix(i0.q_eb))
+    init = InitialState(i0.t_ns, i0.x_e, i0.v_e, q0)
+    v = fi.vectors
+    t_sun = int(v.t_ns[(v.target == "sun") & (v.t_ns >= i0.t_ns)].min())
+    stop = int(np.searchsorted(fi.imu.t_ns, t_sun)) + 2
+    imu = ImuData(fi.imu.t_ns[:stop], fi.imu.f_b[:stop], fi.imu.w_b[:stop], fi.imu.sample)
+    base = matched_tuning().with_(init_att_sigma=math.radians(10.0), vector_gm_mode="off",
+                                  camera_misalignment=StateGroupTuning("off", 0.0), vector_white=1e-5)
+    err = {}
+    for n in (0, 3):
+        res = run(imu, init, base.with_(first_update_iterations=n), vectors=v, R_bc=[c.R_bc for c in coast.cameras],
+                  store_for_smoother=False, unaided=False)
+        k = fi.truth_idx[fi.start_idx + res.t_ns.size - 1]
+        err[n] = float(np.degrees(np.linalg.norm(attitude_errors(res.q_eb[-1], fi.truth.q_eb[k]))))
+    print(f"attitude error after the first Sun epoch: one-step {err[0]:.4f} deg, iterated {err[3]:.4f} deg")
+    assert err[3] < err[0] / 3
