@@ -29,6 +29,7 @@ def add_arguments(p) -> None:
                    help="auto: images if the log has them, else its vectors")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--max-iter", type=int, default=20, help="scoring iterations per round (default 20)")
+    p.add_argument("--verbose", action="store_true", help="print -log L and the parameters at every iteration")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -62,7 +63,12 @@ def run(args) -> int:
     if start.alignment is not None:
         base = base.with_(init_att_sigma=max(base.init_att_sigma, start.alignment.att_sigma))
     inputs = TuneInputs(flight.imu, start.state, flight.gps, sight.vectors, flight.mounts)
-    logging.getLogger("nav.navigator").setLevel(logging.ERROR)   # every run would repeat the rejections
+    if args.verbose:
+        h = logging.StreamHandler()
+        h.setFormatter(logging.Formatter("%(message)s"))
+        lg = logging.getLogger("scenarios.study.tune")
+        lg.addHandler(h)
+        lg.setLevel(logging.INFO)
     with tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
         try:
             res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar)

@@ -365,9 +365,10 @@ def _variances(info: np.ndarray) -> np.ndarray:
     return np.where(flat, np.inf, var)
 
 
-def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 1e-3, mapper=map):
-    """Fisher scoring from ``theta0`` (module docstring). Returns
-    ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
+def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.02, mapper=map):
+    """Fisher scoring from ``theta0`` (module docstring); converged when the predicted decrease
+    of -log L is below ``tol`` (0.02: a change of log L far below what a standard error moves it,
+    0.5). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
     lo, hi = obj.theta0 - math.log(BOUND_FACTOR), obj.theta0 + math.log(BOUND_FACTOR)
     theta = np.clip(np.asarray(theta0, float), lo, hi)
     f, iset = obj(theta)
@@ -376,6 +377,8 @@ def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 1e-3, m
         grad, info, hdiag = _derivatives(obj, theta, f, iset, mapper)
         free = ~(((theta <= lo + 1e-9) & (grad > 0)) | ((theta >= hi - 1e-9) & (grad < 0)))
         decrease = _solve_step(grad, info, 0.0, free)[1]
+        log.info("tune: -log L %.3f, predicted decrease %.3g, %d of %d parameters free, theta/prior %s", f, decrease,
+                 int(free.sum()), free.size, np.round(np.exp(theta - obj.theta0), 3).tolist())
         if decrease < tol:
             converged = True
             break

@@ -5,7 +5,7 @@
   and GPS noise scale are set x0.3, x2.5 and x2 away from the prior;
 * ``tune.minutes_demo``: wall time of ``tune`` (the default parameters, 003 table 3 as prior) on
   the demo flight's log with its vectors (the vision cached: the simulator's vectors), T+60..T+430
-  (QUICK: T+60..T+160);
+  (QUICK: T+60..T+130, three parameters);
 * ``filter.att_3sigma_final_deg_atek_tuned``: the final 3-sigma attitude bound of the filter with
   that estimate, with the RMS attitude error beside it;
 * ``tune.nees_inside_band_fraction``: the share of epochs whose Monte Carlo attitude NEES is
@@ -23,10 +23,14 @@ import numpy as np
 
 from nav.navigator import run
 from nav.tuning import Tuning
-from scenarios.study.tune import TuneInputs, tune
+from scenarios.study.tune import DEFAULT_PARAMS, TuneInputs, tune
 from tests.test_navigator import (VEC_GM_DEG, VEC_WHITE_DEG, attitude_errors, consistency_study, flight_inputs,
                                   truth_init)
 from tests.test_tune import base_tuning, check_recovery, draw
+
+
+#: the parameters QUICK estimates (the vectors' white noise and the GPS scale)
+QUICK_PARAMS = ("vector_white_hor", "vector_white_sun", "gps_noise_scale")
 
 
 def _recovery(bench):
@@ -45,16 +49,17 @@ def _recovery(bench):
 def _demo(bench, is_quick):
     from scenarios.sim.scenario import load_scenario
     from scenarios.sim.simulate import simulate_flight
-    t_end = 160.0 if is_quick else 430.0
+    t_end = 130.0 if is_quick else 430.0
     fl = simulate_flight(load_scenario("atek"), seed=0, duration=t_end)
     fi = flight_inputs(fl, 60.0, seed=0, vec_sigma=math.radians(VEC_GM_DEG), white=math.radians(VEC_WHITE_DEG))
     inp = TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal)
     t0 = time.perf_counter()
-    res = tune(inp, Tuning())
+    names = QUICK_PARAMS if is_quick else DEFAULT_PARAMS
+    res = tune(inp, Tuning(), names)
     minutes = (time.perf_counter() - t0) / 60
     bench("tune.minutes_demo", minutes, "min", baseline=10.0, baseline_name="target 10 min on 2 cores",
           evaluations=res.evaluations, s_per_evaluation=res.seconds_per_evaluation,
-          notes=f"atek T+60..T+{t_end:g}, vectors given (vision cached), default parameters; "
+          notes=f"atek T+60..T+{t_end:g}, vectors given (vision cached), {len(names)} parameters; "
                 f"identified {sum(e.identified for e in res.estimates)} of {len(res.estimates)}")
     out = run(fi.imu, truth_init(fi), res.tuning, gps=fi.gps, vectors=fi.vectors, R_bc=fi.R_bc_nominal,
               store_for_smoother=False, unaided=False)
@@ -80,7 +85,7 @@ def _consistency(bench, is_quick):
                       S.simulate_cameras(sc, tr, seed))
     fi = flight_inputs(fl, 60.0, seed=seed, vec_sigma=math.radians(VEC_GM_DEG), white=math.radians(VEC_WHITE_DEG))
     res = tune(TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal), Tuning(),
-               ["vector_white_hor", "vector_white_sun", "gyro_white", "accel_white", "gps_noise_scale"])
+               QUICK_PARAMS if is_quick else QUICK_PARAMS + ("gyro_white", "accel_white"))
     n = 4 if is_quick else 8
     st = consistency_study(n, t_end=t_end, tuning=res.tuning)
     bench("tune.nees_inside_band_fraction", st.inside_band_fraction("att"), "fraction", baseline=0.95,
