@@ -27,7 +27,7 @@ The optimiser
 -------------
 Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping,
 in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
-trust region of a factor 2 per step. One iteration costs 2p + 1 filter runs: at theta and at
+trust region of a factor 4 per step. One iteration costs 2p + 1 filter runs: at theta and at
 theta +- h e_i (central differences, h = :data:`STEP`). Those runs give the gradient of the
 objective and the derivatives of every innovation and its covariance, hence the Fisher
 information (:func:`nav.likelihood.fisher_information`); the same runs at the final estimate give
@@ -68,7 +68,7 @@ log = logging.getLogger(__name__)
 STEP = 0.05            #: central-difference step in log-parameters
 SE_LOG_MAX = math.log(2.0)   #: largest standard error of a log-parameter called identified
 BOUND_FACTOR = 30.0    #: the estimate stays within this factor of the prior
-MAX_STEP_LOG = math.log(2.0)   #: largest change of a log-parameter in one iteration
+MAX_STEP_LOG = math.log(4.0)   #: largest change of a log-parameter in one iteration
 RIDGE = 1.0            #: added to the information in the step (not in the standard errors)
 VECTOR_KINDS = ("hor", "sun", "moon")
 AIDING = {"gps_pos", "gps_vel", "hor", "sun", "moon"}
@@ -366,9 +366,9 @@ def _variances(info: np.ndarray) -> np.ndarray:
 
 
 def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.02, mapper=map):
-    """Fisher scoring from ``theta0`` (module docstring); converged when the predicted decrease
-    of -log L is below ``tol`` (0.02: a change of log L far below what a standard error moves it,
-    0.5). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
+    """Fisher scoring from ``theta0`` (module docstring); converged when the predicted or the
+    achieved decrease of -log L is below ``tol`` (0.02: far below the 0.5 that one standard
+    error moves it). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
     lo, hi = obj.theta0 - math.log(BOUND_FACTOR), obj.theta0 + math.log(BOUND_FACTOR)
     theta = np.clip(np.asarray(theta0, float), lo, hi)
     f, iset = obj(theta)
@@ -387,13 +387,17 @@ def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.02, m
             th_new = np.clip(theta + step, lo, hi)
             f_new, iset_new = obj(th_new)
             if f_new < f:
-                theta, f, iset, lam = th_new, f_new, iset_new, max(lam / 10, 1e-6)
+                gain, theta, f, iset, lam = f - f_new, th_new, f_new, iset_new, max(lam / 10, 1e-6)
                 break
             lam *= 10
         else:
             # no decrease along the damped steps: the optimum within the objective's precision
             # when the predicted decrease is small, else the best point so far
             converged = decrease < 0.05
+            break
+        if gain < tol:   # the step gained less than tol: converged (information at the new point)
+            converged = True
+            grad, info, hdiag = _derivatives(obj, theta, f, iset, mapper)
             break
     else:
         grad, info, hdiag = _derivatives(obj, theta, f, iset, mapper)
