@@ -190,3 +190,25 @@ def test_iterated_vector_update_reaches_the_map_point(coast):
         err[n] = float(np.degrees(np.linalg.norm(attitude_errors(res.q_eb[-1], fi.truth.q_eb[k]))))
     print(f"attitude error after the first Sun epoch: one-step {err[0]:.4f} deg, iterated {err[3]:.4f} deg")
     assert err[3] < err[0] / 3
+
+
+def test_cli_tune(vlog, tmp_path, capsys):
+    """``horizon-nav tune`` on a simulated log with the Earth target only: the Sun's white noise
+    is reported unidentified with the reason, the GPS scale is estimated (the simulator's GPS
+    errors follow its logged covariances: scale 1 within 4 standard errors), and the tuning file
+    is written and reads back."""
+    from scenarios.cli._main import main
+    from scenarios.config.tuning import load_tuning
+    out = tmp_path / "t.toml"
+    rc = main(["tune", str(vlog), "--from", "T+60", "--to", "T+140", "--targets", "earth", "--quiet",
+               "--params", "vector_white_sun,gps_noise_scale", "-o", str(out)])
+    text = capsys.readouterr().out
+    print(text)
+    assert rc == 0
+    assert "vector_white_sun" in text and "no accepted sun measurement" in text
+    assert "filter runs" in text and "s each" in text
+    t = load_tuning(out)
+    e = [ln for ln in text.splitlines() if ln.startswith("gps_noise_scale")][0]
+    se = float(e.split("+-")[1].split("%")[0]) / 100
+    assert abs(math.log(t.gps_noise_scale)) < 4 * se
+    assert main(["tune", str(vlog), "--params", "nonsense", "-o", str(out), "--quiet"]) == 2

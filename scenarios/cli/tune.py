@@ -44,9 +44,13 @@ def run(args) -> int:
     from scenarios.atomic import atomic_write_text
     from scenarios.errors import UserError
     from scenarios.replay.steps import _tuning
-    from scenarios.study.tune import DEFAULT_PARAMS, TuneInputs, tune, tuning_toml
+    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, tune, tuning_toml
 
     names = DEFAULT_PARAMS if not args.params else tuple(s.strip() for s in args.params.split(",") if s.strip())
+    unknown = [n for n in names if n not in PARAMS]
+    if unknown or not names:
+        raise UserError(f"--params {args.params}: unknown parameter {unknown[0] if unknown else ''!r}; "
+                        f"expected some of {','.join(sorted(PARAMS))}")
     cams = None
     if args.cameras:
         try:
