@@ -365,9 +365,9 @@ def _variances(info: np.ndarray) -> np.ndarray:
     return np.where(flat, np.inf, var)
 
 
-def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.02, mapper=map):
+def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, mapper=map):
     """Fisher scoring from ``theta0`` (module docstring); converged when the predicted or the
-    achieved decrease of -log L is below ``tol`` (0.02: far below the 0.5 that one standard
+    achieved decrease of -log L is below ``tol`` (0.1: well below the 0.5 that one standard
     error moves it). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
     lo, hi = obj.theta0 - math.log(BOUND_FACTOR), obj.theta0 + math.log(BOUND_FACTOR)
     theta = np.clip(np.asarray(theta0, float), lo, hi)
