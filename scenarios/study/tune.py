@@ -37,8 +37,11 @@ quasi-Newton method with finite-difference gradients needs several times the run
 Identification
 --------------
 A parameter is *identified* when the standard error of its logarithm is below
-:data:`SE_LOG_MAX` (``ln 2``: the flight pins it to better than a factor 2 at 1 sigma); the
-others keep their prior and the identified ones are re-estimated with them fixed. A parameter
+:data:`SE_LOG_MAX` (``ln 2``: the flight pins it to better than a factor 2 at 1 sigma). The
+unidentified ones are found one at a time, the largest standard error first, the others' errors
+then taken with it fixed (of two parameters the flight constrains only together, one is fixed
+and the other estimated); they keep their prior and the identified ones are re-estimated with
+them fixed. A parameter
 none of whose measurements are in the flight (e.g. the Sun's white noise without a Sun vector,
 the GPS scale without GPS) is left out before the optimisation, with the reason.
 
@@ -452,8 +455,7 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     while params and rounds < max_rounds:
         rounds += 1
         theta, f, iset, info, _, converged = optimise(obj, theta, max_iter=max_iter, mapper=mapper)
-        se = np.sqrt(_variances(info))
-        weak = (se >= SE_LOG_MAX) & ~_at_bound(obj, theta)
+        weak = _weak(info, _at_bound(obj, theta))
         if weak.any() and not weak.all():
             theta, f, iset, info, se, converged = _refit(obj, theta, weak, max_iter, mapper)
         changed = obj.fix_set(theta)
@@ -475,6 +477,22 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
         warnings.warn(w, RuntimeWarning, stacklevel=2)
     return TuneResult(ests, tuned, f_prior, f, obj.evaluations + obj0.evaluations,
                       time.perf_counter() - t_start, converged, n_meas, rounds, warn)
+
+
+def _weak(info: np.ndarray, at_bound: np.ndarray) -> np.ndarray:
+    """The parameters the flight does not identify: repeatedly the one with the largest standard
+    error above :data:`SE_LOG_MAX` (the others' errors taken with it fixed), so that of two
+    parameters the flight only constrains together, one is fixed and the other estimated."""
+    keep = ~at_bound
+    weak = np.zeros(at_bound.size, bool)
+    while keep.any():
+        idx = np.flatnonzero(keep)
+        se = np.sqrt(_variances(info[np.ix_(idx, idx)]))
+        if se.max() < SE_LOG_MAX:
+            break
+        worst = idx[int(np.argmax(se))]
+        weak[worst], keep[worst] = True, False
+    return weak
 
 
 def _refit(obj: Objective, theta, weak, max_iter, mapper):
