@@ -42,6 +42,7 @@ def run(args) -> int:
 
     from scenarios import initialise, read_flight, see
     from scenarios.atomic import atomic_write_text
+    from scenarios.cli.replay import camera_numbers
     from scenarios.errors import UserError
     from scenarios.replay.steps import _tuning
     from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, tune, tuning_toml
@@ -51,12 +52,7 @@ def run(args) -> int:
     if unknown or not names:
         raise UserError(f"--params {args.params}: unknown parameter {unknown[0] if unknown else ''!r}; "
                         f"expected some of {','.join(sorted(PARAMS))}")
-    cams = None
-    if args.cameras:
-        try:
-            cams = [int(c) for c in args.cameras.split(",") if c.strip()]
-        except ValueError:
-            raise UserError(f"--cameras {args.cameras}: expected camera numbers, e.g. 1,2") from None
+    cams = camera_numbers(args.cameras)
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     base = _tuning(args.tuning)
     overrides = tomllib.loads(Path(args.tuning).read_text()) if args.tuning else {}
