@@ -41,7 +41,10 @@ A parameter is *identified* when the standard error of its logarithm is below
 unidentified ones are found one at a time, the largest standard error first, the others' errors
 then taken with it fixed (of two parameters the flight constrains only together, one is fixed
 and the other estimated); they keep their prior and the identified ones are re-estimated with
-them fixed. A parameter
+them fixed, except those whose prior the flight rejects (-log L higher by more than
+:data:`LR_GAP` with that parameter alone at its prior: one-sided information, such as a white
+noise below what the other errors let the flight see), which keep their estimate without a
+standard error. A parameter
 none of whose measurements are in the flight (e.g. the Sun's white noise without a Sun vector,
 the GPS scale without GPS) is left out before the optimisation, with the reason.
 
@@ -73,6 +76,9 @@ SE_LOG_MAX = math.log(2.0)   #: largest standard error of a log-parameter called
 BOUND_FACTOR = 30.0    #: the estimate stays within this factor of the prior
 MAX_STEP_LOG = math.log(4.0)   #: largest change of a log-parameter in one iteration
 RIDGE = 1.0            #: added to the information in the step (not in the standard errors)
+#: rise of -log L at the prior beyond which a weak parameter keeps its estimate (chi-square 1 dof
+#: at 0.999: 10.8 / 2)
+LR_GAP = 5.4
 VECTOR_KINDS = ("hor", "sun", "moon")
 AIDING = {"gps_pos", "gps_vel", "hor", "sun", "moon"}
 RAD_S_TO_DEG_RTH = math.degrees(1.0) * 60.0   #: rad/sqrt(s) -> deg/sqrt(h)
@@ -176,7 +182,9 @@ class Estimate:
     reason: str | None = None   #: why it is not identified
     unit: str = ""
     to_unit: float = 1.0
-    at_bound: bool = False   #: the estimate is at the search bound (written, without a standard error)
+    #: the estimate is written without a standard error: at the search bound, or one-sided
+    #: (the likelihood flat on one side, the prior rejected)
+    at_bound: bool = False
 
     def line(self) -> str:
         v, p = self.value * self.to_unit, self.prior * self.to_unit
@@ -229,6 +237,7 @@ class Objective:
         self.evaluations, self.seconds = 0, 0.0
         self.gps, self.vectors = inputs.gps, inputs.vectors
         self.keys = None
+        self.one_sided = {}
 
     def tuning(self, theta, *, gate: bool = False) -> Tuning:
         t = self.base
@@ -456,6 +465,7 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
         rounds += 1
         theta, f, iset, info, _, converged = optimise(obj, theta, max_iter=max_iter, mapper=mapper)
         weak = _weak(info, _at_bound(obj, theta))
+        weak &= ~_one_sided(obj, theta, f, weak)
         if weak.any() and not weak.all():
             theta, f, iset, info, se, converged = _refit(obj, theta, weak, max_iter, mapper)
         changed = obj.fix_set(theta)
@@ -470,13 +480,29 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     tuned = base
     for e in ests:
         tuned = PARAMS[e.name].set(tuned, e.value) if (e.identified or e.at_bound) else tuned
-    warn += [f"{e.name} is at the bound of the search ({e.value * e.to_unit:.4g} {e.unit}, x{e.value / e.prior:.3g} "
-             f"of the prior): the flight prefers a value beyond it" for e in ests if e.at_bound]
+    warn += [f"{e.name} = {e.value * e.to_unit:.4g} {e.unit} has no standard error: {e.reason}"
+             for e in ests if e.at_bound]
     n_meas = len(obj.keys) if obj.keys is not None else 0
     for w in warn:
         warnings.warn(w, RuntimeWarning, stacklevel=2)
     return TuneResult(ests, tuned, f_prior, f, obj.evaluations + obj0.evaluations,
                       time.perf_counter() - t_start, converged, n_meas, rounds, warn)
+
+
+def _one_sided(obj: Objective, theta, f: float, weak) -> np.ndarray:
+    """Of the weak parameters, those whose prior the flight rejects: -log L rises by more than
+    :data:`LR_GAP` when the parameter alone goes back to its prior (the likelihood is flat on one
+    side of the estimate only, e.g. a white noise below what the other errors let the flight
+    see). They keep their estimate, without a standard error (``obj.one_sided``: name -> rise)."""
+    out = np.zeros(theta.size, bool)
+    for i in np.flatnonzero(weak):
+        th = theta.copy()
+        th[i] = obj.theta0[i]
+        rise = obj(th)[0] - f
+        if rise > LR_GAP:
+            out[i] = True
+            obj.one_sided[obj.params[i].name] = rise
+    return out
 
 
 def _weak(info: np.ndarray, at_bound: np.ndarray) -> np.ndarray:
@@ -533,6 +559,10 @@ def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> 
                                          f"(> ln 2, a factor-2 1-sigma)")
             if b:
                 reason = f"at the bound of the search (x{math.exp(th - math.log(p.get(base))):.3g} of the prior)"
+            elif not ident and p.name in obj.one_sided:
+                b = True
+                reason = (f"one-sided: no standard error, but -log L is {obj.one_sided[p.name]:.1f} higher at the "
+                          f"prior (x{math.exp(th - math.log(p.get(base))):.3g} of the prior kept)")
             out.append(Estimate(p.name, p.get(base), math.exp(th) if (ident or b) else p.get(base), float(s), ident,
                                 reason, p.unit, p.to_unit, bool(b)))
     for n, r in why.items():
