@@ -610,7 +610,7 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
             continue
         for tb, key, val in PARAMS[e.name].entries(e.value):
             tables.setdefault(tb, {})[key] = val
-            comments[(tb, key)] = (f"ML estimate, standard error {100 * e.se_log:.0f} % (1 sigma, log-parameter); "
+            comments[(tb, key)] = (f"ML estimate, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
                                    f"prior {e.prior * e.to_unit:.4g} {e.unit}")
     for tb in sorted(tables):
         lines += ["", f"[{tb}]"]
