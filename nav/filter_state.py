@@ -132,6 +132,20 @@ class FilterState:
         only when ``affine_estimated``)."""
         self._set_calibration(self.affine_estimated)
 
+    def snapshot(self):
+        """Copies of what an update changes: covariance, nominal state, fed-back estimates."""
+        return self.P.copy(), self.nav.copy(), self.fed.copy()
+
+    def restore(self, snap) -> None:
+        """Back to a :meth:`snapshot` (in place: the views into ``nav`` and ``fed`` stay valid)."""
+        self.P[:], self.nav[:], self.fed[:] = snap
+        self._set_calibration(True)
+
+    def attitude_sigma(self) -> float:
+        """Largest per-axis 1-sigma of the attitude error psi [rad]."""
+        i = self.layout["psi"].start
+        return float(np.sqrt(np.max(np.diagonal(self.P)[i:i + 3])))
+
     def extrapolate(self, f, w, dt_m):
         """The state ``dt_m`` seconds after the current sample (:func:`extrapolate`)."""
         return extrapolate(self.nav, f, w, dt_m, OMEGA_E)

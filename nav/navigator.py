@@ -417,7 +417,7 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
     vectors = _corrected_stamps(vectors, clk0)
     sources = []
     if gps is not None:
-        sources.append(GpsFixes(gps, lever_b, layout))
+        sources.append(GpsFixes(gps, lever_b, layout, tuning.gps_noise_scale))
     if vectors is not None:
         sources.append(CameraVectors(vectors, layout, tuning, len(R_bc)))
     events, ev_idx = _within(_events(sources, rejected), t_ns, rejected)
@@ -502,12 +502,38 @@ class _Loop:
             e_ptr += 1
             src = sources[si]
             src.fill(j, t_m, (f, w, (t_m - t_k) / NS - src.clock_shift(j, st)), st, stack)
+        tun = st.tuning
+        prior = (st.snapshot() if tun.first_update_iterations and st.attitude_sigma() > tun.first_update_att_sigma
+                 and any(b[1] in ("hor", "sun", "moon") for b in stack.blocks) else None)
         dx = stack.apply(st, innovations, self.rejected, t_k)
+        if prior is not None and dx is not None:
+            dx = self.relinearise(k, kk, e0, e_ptr, prior, dx)
         if stack.triad:
             self.rec.triad_pairs(stack.triad)
         if rcv.watch and rcv.diverged(self.rejected, innovations, n0):
             self.recover(k, kk, e0, False)
         return e_ptr, dx
+
+    def relinearise(self, k: int, kk: int, e0: int, e1: int, prior, dx):
+        """The iterated update of the epoch at sample k (an iterated EKF): the measurements of
+        events ``e0..e1`` linearised again about the updated state, ``first_update_iterations``
+        times (:meth:`nav.updates.EpochStack.relinearised`); the state ends at the last
+        successful iterate. Returns its correction from the prior."""
+        st, stack, t_k = self.st, self.stack, self.t_l[k]
+        f, w = self.fw[kk]
+        for _ in range(st.tuning.first_update_iterations):
+            delta, post = dx.copy(), st.snapshot()
+            stack.reset()
+            for t_m, si, j in self.events[e0:e1]:
+                src = self.sources[si]
+                src.fill(j, t_m, (f, w, (t_m - t_k) / NS - src.clock_shift(j, st)), st, stack)
+            st.restore(prior)
+            new = stack.relinearised(st, delta)
+            if new is None:
+                st.restore(post)
+                return delta
+            dx = new
+        return dx
 
     def recover(self, k: int, kk: int, e0: int, gap: bool):
         """A re-initialisation at the epoch of sample k (:class:`nav.recovery.Recovery`): before

@@ -9,9 +9,11 @@ default, an unknown table or key is an error naming it::
                 gyro_white_noise_deg_rth, gyro_white_noise_extra_deg_rth,
                 gyro_range_deg_s, accel_range_g, max_gap_s
     [states.<group>]  mode = "E" | "C" | "off", sigma_<unit>  (groups and units: ``_GROUPS``)
-    [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg
+    [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg,
+                white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon)
+    [gps]       noise_scale
     [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
-    [filter]    max_cov_interval_s, gate_probability
+    [filter]    max_cov_interval_s, gate_probability, first_update_iterations
     [recovery]  enabled, gap_s, gap_samples, gated_fixes, velocity_sigma_m_s,
                 attitude_sigma_gap_deg, attitude_sigma_divergence_deg
 
@@ -80,6 +82,24 @@ class Tuning:
         T_c of the Gauss-Markov process (003 §6.3: 20 s).
     gm_default_sigma : float
         Stationary sigma of zeta before a target's first measurement brings its P_c.
+    vector_white_by_target : tuple of (str, float)
+        Per target, a white noise that replaces ``vector_white`` for that target's vectors
+        (e.g. ``(("hor", 0.003),)``; :meth:`vector_white_for`).
+    vector_cov_scale_by_target : tuple of (str, float)
+        Per target, a factor on the 1-sigma of the vision's covariance P_c (003 eq. (33)): P_c is
+        multiplied by its square wherever it enters (the Gauss-Markov stationary covariance of
+        eqs. (44)-(45), or R with the Gauss-Markov states off); default 1 (:meth:`vector_cov_scale_for`).
+    gps_noise_scale : float
+        Factor on the 1-sigma of every GPS fix's position and velocity covariance (R multiplied
+        by its square); default 1 (the receiver's covariances as logged).
+    first_update_iterations : int
+        Gauss-Newton relinearisations of the camera-vector updates (an iterated EKF) while the
+        attitude is still uncertain: vector epochs whose prior attitude 1-sigma exceeds
+        ``first_update_att_sigma`` are linearised again about the updated state this many times
+        (0: the ordinary one-step update; :mod:`nav.updates` ``EpochStack.apply``).
+    first_update_att_sigma : float
+        Largest per-axis attitude 1-sigma [rad] (prior of the epoch) at which the iterated update is
+        still used (beyond it the linearisation error is of second order in the attitude error).
     targets : tuple of str
         Vector targets modelled: subset of ("hor", "sun", "moon").
     init_att_sigma, init_pos_sigma, init_vel_sigma : float
@@ -123,6 +143,11 @@ class Tuning:
     vector_gm_mode: str = "C"
     correlation_time_s: float = 20.0
     gm_default_sigma: float = math.radians(0.1)
+    vector_white_by_target: tuple = ()
+    vector_cov_scale_by_target: tuple = ()
+    gps_noise_scale: float = 1.0
+    first_update_iterations: int = 0
+    first_update_att_sigma: float = math.radians(0.3)
     targets: tuple = ("hor", "sun")
     init_att_sigma: float = math.radians(2.0)
     init_pos_sigma: float = 10.0
@@ -143,6 +168,14 @@ class Tuning:
     def with_(self, **kw) -> "Tuning":
         """Copy with fields replaced (dataclasses.replace)."""
         return replace(self, **kw)
+
+    def vector_white_for(self, target: str) -> float:
+        """White noise (1 sigma, unit-vector units) of ``target``'s vectors."""
+        return dict(self.vector_white_by_target).get(target, self.vector_white)
+
+    def vector_cov_scale_for(self, target: str) -> float:
+        """Factor on the 1-sigma of ``target``'s vision covariance P_c."""
+        return dict(self.vector_cov_scale_by_target).get(target, 1.0)
 
 
 def _group(d: dict, key: str, unit_key: str, scale: float, default: StateGroupTuning) -> StateGroupTuning:
@@ -193,14 +226,21 @@ _SCALARS = {
                 "gm_default_sigma_deg": ("gm_default_sigma", math.radians(1.0))},
     "initial": {"attitude_sigma_deg": ("init_att_sigma", math.radians(1.0)),
                 "position_sigma_m": ("init_pos_sigma", 1.0), "velocity_sigma_m_s": ("init_vel_sigma", 1.0)},
-    "filter": {"max_cov_interval_s": ("max_cov_interval_s", 1.0), "gate_probability": ("gate_probability", 1.0)},
+    "filter": {"max_cov_interval_s": ("max_cov_interval_s", 1.0), "gate_probability": ("gate_probability", 1.0),
+               "first_update_att_sigma_deg": ("first_update_att_sigma", math.radians(1.0))},
+    "gps": {"noise_scale": ("gps_noise_scale", 1.0)},
     "recovery": {"gap_s": ("recovery_gap_s", 1.0), "gap_samples": ("recovery_gap_samples", 1.0),
                  "velocity_sigma_m_s": ("recovery_vel_sigma", 1.0),
                  "attitude_sigma_gap_deg": ("recovery_att_sigma_gap", math.radians(1.0)),
                  "attitude_sigma_divergence_deg": ("recovery_att_sigma_divergence", math.radians(1.0))},
 }
-_NONZERO = {"correlation_time_s", "max_cov_interval_s"}
-_OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE), "vectors": {"gm_mode", "targets"}, "initial": set(), "filter": set(),
+_NONZERO = {"correlation_time_s", "max_cov_interval_s", "noise_scale"}
+VECTOR_TARGETS = ("hor", "sun", "moon")
+#: per-target keys of [vectors]: key prefix -> Tuning field of (target, value) pairs
+_PER_TARGET = {"white_noise_": "vector_white_by_target", "cov_scale_": "vector_cov_scale_by_target"}
+_OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE),
+               "vectors": {"gm_mode", "targets"} | {p + t for p in _PER_TARGET for t in VECTOR_TARGETS},
+               "initial": set(), "filter": {"first_update_iterations"}, "gps": set(),
                "recovery": {"enabled", "gated_fixes"}}
 
 
@@ -244,6 +284,26 @@ def _vector_choices(vec: dict, kw: dict) -> None:
         kw["targets"] = t
 
 
+def _per_target(vec: dict, kw: dict) -> None:
+    """``[vectors] white_noise_<target>``, ``cov_scale_<target>`` (a scale must be > 0)."""
+    for prefix, field_ in _PER_TARGET.items():
+        pairs = []
+        for t in VECTOR_TARGETS:
+            if prefix + t in vec:
+                x = _positive(vec[prefix + t], f"[vectors] {prefix + t}")
+                if prefix == "cov_scale_" and x == 0:
+                    raise ValueError(f"tuning [vectors] {prefix + t}: must be > 0")
+                pairs.append((t, x))
+        if pairs:
+            kw[field_] = tuple(pairs)
+
+
+def _count(table: str, key: str, n) -> int:
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise ValueError(f"tuning [{table}] {key}: expected a non-negative integer, got {n!r}")
+    return n
+
+
 def _recovery_choices(rec: dict, kw: dict) -> None:
     """``[recovery]`` enabled (a boolean) and gated_fixes (a non-negative integer)."""
     if "enabled" in rec:
@@ -251,15 +311,12 @@ def _recovery_choices(rec: dict, kw: dict) -> None:
             raise ValueError(f"tuning [recovery] enabled: expected true or false, got {rec['enabled']!r}")
         kw["recovery"] = rec["enabled"]
     if "gated_fixes" in rec:
-        n = rec["gated_fixes"]
-        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-            raise ValueError(f"tuning [recovery] gated_fixes: expected a non-negative integer, got {n!r}")
-        kw["recovery_gated_fixes"] = n
+        kw["recovery_gated_fixes"] = _count("recovery", "gated_fixes", rec["gated_fixes"])
 
 
 def tuning_from_dict(d: dict) -> Tuning:
     """Build a :class:`Tuning` from a dict of overrides shaped like a tuning TOML file (tables
-    ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``, ``[recovery]``; units in the key
+    ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``, ``[recovery]``, ``[gps]``; units in the key
     names): every key absent keeps the :class:`Tuning` default (003 table 3).
 
     Raises ``ValueError`` naming the offending table and key for unknown tables or keys and bad
@@ -267,7 +324,7 @@ def tuning_from_dict(d: dict) -> Tuning:
     """
     if not isinstance(d, dict):
         raise ValueError("tuning: expected a table (dict)")
-    known = {"imu", "states", "vectors", "initial", "filter", "recovery"}
+    known = {"imu", "states", "vectors", "initial", "filter", "recovery", "gps"}
     unknown = set(d) - known
     if unknown:
         raise ValueError(f"tuning: unknown sections {sorted(unknown)}; expected {sorted(known)}")
@@ -280,6 +337,10 @@ def tuning_from_dict(d: dict) -> Tuning:
                 kw[field_] = _scalar(name, key, table[key], scale)
     _imu_white(d.get("imu", {}), kw)
     _vector_choices(d.get("vectors", {}), kw)
+    _per_target(d.get("vectors", {}), kw)
+    if "first_update_iterations" in d.get("filter", {}):
+        kw["first_update_iterations"] = _count("filter", "first_update_iterations",
+                                               d["filter"]["first_update_iterations"])
     _recovery_choices(d.get("recovery", {}), kw)
     states = d.get("states", {})
     unknown = set(states) - set(_GROUPS)

@@ -84,6 +84,7 @@ class EpochStack:
         self._patterns = {}
         self._views = {}   #: rows -> the first rows of H, s and R (views, reused)
         self._dx = np.empty(n)   #: the correction of the latest update (the caller copies it)
+        self.accepted = []       #: indices into ``blocks`` of the blocks the latest apply used
 
     def reset(self) -> None:
         self.m = 0
@@ -137,7 +138,8 @@ class EpochStack:
         if good:
             status, dx, S_all, offs, code, nis_l = self._update(st, good)
         gi, s_all, append = 0, self.s, innovations.append
-        for t_m, kind, cam, o, dim, bad in self.blocks:
+        self.accepted = []
+        for bi, (t_m, kind, cam, o, dim, bad) in enumerate(self.blocks):
             nis, S = np.nan, None
             if bad is None:
                 c, a, b = code[gi], offs[gi], offs[gi + 1]
@@ -150,7 +152,9 @@ class EpochStack:
             if S is None:
                 S = np.full((dim, dim), np.nan)
             append(Innovation(t_m, kind, cam, s_all[o:o + dim].copy(), S, nis, bad is None, bad))
-            if bad is not None:
+            if bad is None:
+                self.accepted.append(bi)
+            else:
                 rejected[f"{kind}_{bad}"] += 1
                 log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
         if status == OK:
@@ -159,6 +163,30 @@ class EpochStack:
             rejected[f"batch_{REASONS[int(status)]}"] += 1
             log.warning("update at %d ns rejected: %s", t_k, REASONS[int(status)])
         return None
+
+    def relinearised(self, st, delta) -> np.ndarray | None:
+        """One Gauss-Newton step of the iterated update (Bell & Cathey 1993): the blocks accepted
+        by the latest :meth:`apply`, filled again about the current estimate ``x_i`` (rows ``H_i``,
+        innovations ``s_i``), applied to the prior that ``st`` holds again with the innovation
+        ``s_i + H_i delta``, ``delta`` the correction from the prior to ``x_i`` (error-state
+        coordinates), without gating. Returns the new correction from the prior, or None when
+        the update fails (non-finite or S not positive definite)."""
+        blocks = [self.blocks[i] for i in self.accepted]
+        if not blocks:
+            return None
+        rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in blocks])
+        H, R = self.H[rows], self.R[np.ix_(rows, rows)]
+        s = self.s[rows] + H @ delta
+        offs = np.zeros(len(blocks) + 1, dtype=np.int64)
+        np.cumsum([b[4] for b in blocks], out=offs[1:])
+        m, nb_ = rows.size, len(blocks)
+        dx = np.empty(st.n)
+        status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, np.zeros(nb_), np.empty((m, m)),
+                                                 np.empty(nb_), np.empty(nb_, dtype=np.int64), dx, st.nav, st.fed,
+                                                 st.fb, st.cal_m)
+        if changed and st.affine_estimated:
+            st.calibration_changed()
+        return dx if status == OK else None
 
     def _update(self, st, good):
         """:func:`update_feedback_kernel` on the blocks without input problems."""
@@ -200,10 +228,10 @@ class GpsFixes:
     ``"gps_vel"`` per fix (3 rows each, :func:`gps_rows_kernel`; noise the fix's covariances).
     A fix whose velocity is NaN in all three components is a position-only fix (no velocity
     block), as is every fix of ``GpsData(v_e=None)``. Input problems: :func:`cov3_problems` of
-    each block."""
+    each block. ``noise_scale`` multiplies the 1-sigma of both covariances (``Tuning.gps_noise_scale``)."""
     name = "gps"
 
-    def __init__(self, gps, lever_b, layout):
+    def __init__(self, gps, lever_b, layout, noise_scale: float = 1.0):
         self.t_ns = np.asarray(gps.t_ns, dtype=np.int64)
         self.x = np.ascontiguousarray(gps.x_e, float)
         v = None if gps.v_e is None else np.ascontiguousarray(gps.v_e, float)
@@ -211,8 +239,9 @@ class GpsFixes:
                        else ~np.all(np.isnan(v.reshape(self.t_ns.size, 3)), axis=1))
         self.has_v = bool(self.with_v.any())
         self.v = v if self.has_v else self.x
-        self.P_x = np.ascontiguousarray(gps.P_x, float)
-        self.P_v = np.ascontiguousarray(gps.P_v, float) if self.has_v else self.P_x
+        k2 = float(noise_scale) ** 2
+        self.P_x = np.ascontiguousarray(gps.P_x, float) * k2
+        self.P_v = np.ascontiguousarray(gps.P_v, float) * k2 if self.has_v else self.P_x
         self.bad_x = list(cov3_problems(self.x, self.P_x))
         self.bad_v = list(cov3_problems(self.v, self.P_v)) if self.has_v else None
         self.with_v_l = self.with_v.tolist()
@@ -291,8 +320,11 @@ def _lever_rows(r, ip, row, H):
 class CameraVectors:
     """Camera direction vectors: one 2-row block per vector in the plane tangent to the predicted
     vector (:mod:`nav.measurements`; kind = the target, camera = its index), with the clock offset
-    and Gauss-Markov columns where the layout has them. Input problems: unknown camera, target
-    not modelled, non-finite vector, :func:`nav.measurements.vector_covariance_problem`."""
+    and Gauss-Markov columns where the layout has them. The noise is the target's white noise
+    (:meth:`nav.tuning.Tuning.vector_white_for`) and the vision's P_c times the square of the
+    target's covariance scale (:meth:`nav.tuning.Tuning.vector_cov_scale_for`). Input problems:
+    unknown camera, target not modelled, non-finite vector,
+    :func:`nav.measurements.vector_covariance_problem`."""
     name = "vec"
 
     def __init__(self, vec, layout, tuning, n_cam: int):
@@ -301,6 +333,8 @@ class CameraVectors:
         self.target = [str(g) for g in vec.target]
         self.e_c, self.P_c = vec.e_c, vec.P_c
         self.layout, self.tuning, self.n_cam = layout, tuning, n_cam
+        self.white2 = {t: tuning.vector_white_for(t) ** 2 for t in set(self.target)}
+        self.pc_scale2 = {t: tuning.vector_cov_scale_for(t) ** 2 for t in set(self.target)}
         self.problems = vector_problems(vec)
         self.body_pos = {}
         tg = np.asarray(vec.target)
@@ -331,7 +365,8 @@ class CameraVectors:
             return None, None, "non-finite vector"
         e_c = e_c / nrm
         bad = self.problems[j] if self.problems is not None else vector_covariance_problem(P_c, e_c)
-        return e_c, P_c, bad
+        k2 = self.pc_scale2[self.target[j]]
+        return e_c, (P_c * k2 if k2 != 1.0 else P_c), bad
 
     def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:
         cam, target = self.camera[j], self.target[j]
@@ -363,7 +398,7 @@ class CameraVectors:
         if lay.has(lay.clock_name(cam)):
             # the frame was taken at stamp - offset_true = t_est - dt_c: e_true = e(t_est) - de_c/dt dt_c
             H3[:, lay[lay.clock_name(cam)].start] = -vector_rate(target, x_m, v_m, u_e, R_m, R_bc, w_eb, tpos)
-        R3 = self.tuning.vector_white ** 2 * np.eye(3)
+        R3 = self.white2[target] * np.eye(3)
         if has_z:
             H3[:, lay[zname]] = np.eye(3)
             self._restart_zeta(st, zname, t_m, P_c)

@@ -52,14 +52,19 @@ def add_arguments(p) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def camera_numbers(text: str | None):
+    """``--cameras 1,2`` -> [1, 2]; None for all cameras."""
+    if not text:
+        return None
+    try:
+        return [int(c) for c in text.split(",") if c.strip()]
+    except ValueError:
+        raise UserError(f"--cameras {text}: expected camera numbers, e.g. 1,2") from None
+
+
 def options_from_args(args):
     from scenarios.replay.pipeline import ReplayOptions
-    cams = None
-    if args.cameras:
-        try:
-            cams = [int(c) for c in args.cameras.split(",") if c.strip()]
-        except ValueError:
-            raise UserError(f"--cameras {args.cameras}: expected camera numbers, e.g. 1,2") from None
+    cams = camera_numbers(args.cameras)
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     masks = {}
     for item in getattr(args, "mask", []) or []:

@@ -1,0 +1,88 @@
+"""The likelihood of a filter run's innovations and its information matrix (pure computation).
+
+For a linear Gaussian state-space model the innovations ``nu_k`` of a Kalman filter are
+independent with covariance ``S_k``, so the log-likelihood of the measurements is the
+prediction-error decomposition (Schweppe 1965; Harvey, *Forecasting, structural time series
+models and the Kalman filter*, §3.4)::
+
+    -log L(theta) = sum_k 0.5 (d_k log(2 pi) + log det S_k + nu_k^T S_k^-1 nu_k)
+
+over the measurement blocks k the filter applied (003 eq. (49)'s innovation and its covariance,
+:class:`nav.updates.Innovation`). Its expected Hessian, the Fisher information, needs only the
+first derivatives of ``nu_k`` and ``S_k`` (Harvey eq. (3.4.69))::
+
+    I_ij = sum_k 0.5 tr(S^-1 dS/dtheta_i S^-1 dS/dtheta_j) + dnu/dtheta_i^T S^-1 dnu/dtheta_j
+
+which :func:`fisher_information` evaluates from derivatives the caller obtains (e.g. by central
+differences of filter runs).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["InnovationSet", "innovation_set", "negative_log_likelihood", "fisher_information"]
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+class InnovationSet:
+    """The applied innovations of a run grouped by block dimension: ``keys`` (t_ns, kind, camera)
+    per block, and per dimension d the stacked ``nu`` (m, d) and ``S`` (m, d, d) with the index
+    of each block in ``keys``."""
+
+    def __init__(self, keys: list, by_dim: dict):
+        self.keys = keys
+        self.by_dim = by_dim   #: d -> (indices (m,), nu (m, d), S (m, d, d))
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def kinds(self) -> set:
+        return {k[1] for k in self.keys}
+
+
+def innovation_set(innovations, *, kinds=None) -> InnovationSet:
+    """The accepted innovations (:class:`nav.updates.Innovation` list of a
+    :class:`nav.navigator.NavResult`) of ``kinds`` (default all), grouped by dimension."""
+    keys, groups = [], {}
+    for inn in innovations:
+        if not inn.accepted or (kinds is not None and inn.kind not in kinds):
+            continue
+        d = int(np.size(inn.s))
+        g = groups.setdefault(d, ([], [], []))
+        g[0].append(len(keys))
+        g[1].append(np.asarray(inn.s, float).reshape(d))
+        g[2].append(np.asarray(inn.S, float).reshape(d, d))
+        keys.append((int(inn.t_ns), inn.kind, int(inn.camera)))
+    by_dim = {d: (np.array(g[0], np.int64), np.array(g[1]), np.array(g[2])) for d, g in groups.items()}
+    return InnovationSet(keys, by_dim)
+
+
+def negative_log_likelihood(iset: InnovationSet) -> tuple[float, np.ndarray]:
+    """``(-log L, per-block terms (len(iset),))`` of the prediction-error decomposition (module
+    docstring). A block whose S is not positive definite makes the total ``inf``."""
+    terms = np.zeros(len(iset))
+    for d, (idx, nu, S) in iset.by_dim.items():
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            terms[idx] = np.inf
+            continue
+        z = np.linalg.solve(L, nu[..., None])[..., 0]
+        logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
+        terms[idx] = 0.5 * (d * LOG_2PI + logdet + np.sum(z * z, axis=1))
+    return float(terms.sum()), terms
+
+
+def fisher_information(S: np.ndarray, dS: np.ndarray, dnu: np.ndarray) -> np.ndarray:
+    """Fisher information (p, p) of the parameters from blocks of one dimension d (module
+    docstring): ``S`` (m, d, d) at the estimate, ``dS`` (p, m, d, d) and ``dnu`` (p, m, d) the
+    derivatives of S and of the innovations with respect to each parameter. Sum the results of
+    the dimensions present."""
+    Si = np.linalg.inv(S)
+    A = np.einsum("mab,pmbc->pmac", Si, dS)             # S^-1 dS_i
+    tr = 0.5 * np.einsum("imab,jmba->ij", A, A)         # 0.5 tr(S^-1 dS_i S^-1 dS_j)
+    W = np.einsum("mab,pmb->pma", Si, dnu)
+    return tr + np.einsum("ima,jma->ij", dnu, W)

@@ -1,0 +1,82 @@
+"""``horizon-nav tune FLIGHT.mcap -o tuning.toml``: the filter's noise parameters estimated from the
+flight by maximum likelihood of the innovations (:mod:`scenarios.study.tune`, docs/tuning.md).
+
+The vision runs once (or the log's vectors are used); every likelihood evaluation replays the
+filter on those vectors. Prints each estimate with its standard error, the parameters the flight
+does not identify with the reason, the number of filter runs and the time per run; writes the
+tuning file (overrides of the base tuning, each estimate commented) atomically."""
+from __future__ import annotations
+
+NAME = "tune"
+HELP = "estimate the filter's noise parameters from a flight (maximum likelihood) -> tuning TOML"
+
+
+def add_arguments(p) -> None:
+    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS
+    p.add_argument("log", help="flight log (.mcap)")
+    p.add_argument("-o", "--output", required=True, help="tuning TOML to write")
+    p.add_argument("--params", default=None,
+                   help=f"comma-separated parameters to estimate (default: {','.join(DEFAULT_PARAMS)}; "
+                        f"known: {','.join(sorted(PARAMS))})")
+    p.add_argument("--tuning", default=None, help="base tuning TOML: the prior and the other settings (default: 003 table 3)")
+    p.add_argument("--from", dest="t_from", default=None, help="start: T+<s> or UTC ISO (default: log start)")
+    p.add_argument("--to", dest="t_to", default=None, help="end: T+<s> or UTC ISO (default: log end)")
+    p.add_argument("--cameras", default=None, help="cameras to use, e.g. 1,2 (default: all)")
+    p.add_argument("--targets", default="earth,sun", help="targets: earth,sun[,moon] (default earth,sun)")
+    p.add_argument("--init", choices=("truth", "triad", "align"), default=None,
+                   help="initialisation (default as for replay: triad when vectors exist)")
+    p.add_argument("--vision", choices=("auto", "images", "vectors"), default="auto",
+                   help="auto: images if the log has them, else its vectors")
+    p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
+    p.add_argument("--max-iter", type=int, default=20, help="scoring iterations per round (default 20)")
+    p.add_argument("--verbose", action="store_true", help="print -log L and the parameters at every iteration")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    import logging
+    import tomllib
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from scenarios import initialise, read_flight, see
+    from scenarios.atomic import atomic_write_text
+    from scenarios.cli.replay import camera_numbers
+    from scenarios.errors import UserError
+    from scenarios.replay.steps import _tuning
+    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, tune, tuning_toml
+
+    names = DEFAULT_PARAMS if not args.params else tuple(s.strip() for s in args.params.split(",") if s.strip())
+    unknown = [n for n in names if n not in PARAMS]
+    if unknown or not names:
+        raise UserError(f"--params {args.params}: unknown parameter {unknown[0] if unknown else ''!r}; "
+                        f"expected some of {','.join(sorted(PARAMS))}")
+    cams = camera_numbers(args.cameras)
+    targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
+    base = _tuning(args.tuning)
+    overrides = tomllib.loads(Path(args.tuning).read_text()) if args.tuning else {}
+    flight = read_flight(args.log, t_from=args.t_from, t_to=args.t_to, cameras=cams, vision=args.vision)
+    init = args.init or "auto"
+    sight = see(flight, init=init, targets=targets, workers=args.workers)
+    start = sight.start if sight.start is not None else initialise(flight, sight, init=init)
+    if start.alignment is not None:
+        base = base.with_(init_att_sigma=max(base.init_att_sigma, start.alignment.att_sigma))
+    inputs = TuneInputs(flight.imu, start.state, flight.gps, sight.vectors, flight.mounts)
+    if args.verbose:
+        h = logging.StreamHandler()
+        h.setFormatter(logging.Formatter("%(message)s"))
+        lg = logging.getLogger("scenarios.study.tune")
+        lg.addHandler(h)
+        lg.setLevel(logging.INFO)
+    with tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
+        try:
+            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar)
+        except ValueError as e:
+            raise UserError(f"--params: {e}") from None
+    print(res.report())
+    header = (f"Filter tuning estimated by `horizon-nav tune` from {Path(args.log).name} (maximum likelihood of the\n"
+              f"innovations; standard errors from the Fisher information; base: {args.tuning or '003 table 3'}).\n"
+              f"-log L {res.nll_prior:.1f} -> {res.nll:.1f} over {res.n_measurements} measurement blocks.")
+    print(atomic_write_text(args.output, tuning_toml(res, overrides, header)))
+    return 0

@@ -1,0 +1,620 @@
+"""Maximum-likelihood tuning of the filter's noise parameters from a flight (``horizon-nav tune``).
+
+The objective is the negative log-likelihood of the filter's innovations, the prediction-error
+decomposition of :mod:`nav.likelihood`, as a function of the logarithms of the chosen parameters
+(:data:`PARAMS`). The vectors are measured once (the vision on the images, or the log's vectors);
+every evaluation replays the filter (:func:`nav.navigator.run`) on them with the parameters set.
+
+The measurement set is fixed
+----------------------------
+The chi-square gate depends on the parameters: a measurement near the gate enters or leaves the
+sum as they change, and the objective jumps. Each optimisation therefore runs on a fixed set,
+with the gate switched off: the measurements the gate accepts at the starting tuning (its other
+measurements are removed from the inputs). After it converges the gate is applied again at the
+estimate; if the set changed, the optimisation is repeated on the new set (at most
+``max_rounds`` times). The estimate is thus consistent with its own gate, and within each
+optimisation the objective is smooth.
+
+The filter of the likelihood
+----------------------------
+The prediction-error decomposition is the likelihood of the measurements only when the
+innovations are white, i.e. for the optimal filter of the model. A Schmidt filter's considered
+errors are never corrected, so its innovations are correlated in time. Each evaluation therefore
+runs the filter with every considered ("C") group estimated (:func:`estimated_everywhere`); the
+tuning written keeps the modes of the base tuning.
+
+The optimiser
+-------------
+Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping,
+in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
+trust region of a factor 4 per step. One iteration costs 2p + 1 filter runs: at theta and at
+theta +- h e_i (central differences, h = :data:`STEP`). Those runs give the gradient of the
+objective and the derivatives of every innovation and its covariance, hence the Fisher
+information (:func:`nav.likelihood.fisher_information`); the same runs at the final estimate give
+its standard errors. Scoring converges in a handful of iterations on this likelihood, where a
+quasi-Newton method with finite-difference gradients needs several times the runs.
+
+Identification
+--------------
+A parameter is *identified* when the standard error of its logarithm is below
+:data:`SE_LOG_MAX` (``ln 2``: the flight pins it to better than a factor 2 at 1 sigma). The
+unidentified ones are found one at a time, the largest standard error first, the others' errors
+then taken with it fixed (of two parameters the flight constrains only together, one is fixed
+and the other estimated); they keep their prior and the identified ones are re-estimated with
+them fixed, except those whose prior the flight rejects (-log L higher by more than
+:data:`LR_GAP` with that parameter alone at its prior: one-sided information, such as a white
+noise below what the other errors let the flight see), which keep their estimate without a
+standard error. A parameter
+none of whose measurements are in the flight (e.g. the Sun's white noise without a Sun vector,
+the GPS scale without GPS) is left out before the optimisation, with the reason.
+
+Adding a parameter is one :class:`Param` in :data:`PARAMS`: how to read it from and set it in a
+:class:`nav.tuning.Tuning`, the measurement kinds it needs and its key in the tuning TOML (an
+edge-height sigma becomes ``Param("edge_height_sigma", ...)`` reading the tuning field the edge
+state adds, needing the edge measurements' kind).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from nav.error_state import IMU_GROUPS
+from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
+from nav.navigator import GpsData, VectorData, run
+from nav.tuning import G0, Tuning
+
+log = logging.getLogger(__name__)
+
+STEP = 0.05            #: central-difference step in log-parameters
+SE_LOG_MAX = math.log(2.0)   #: largest standard error of a log-parameter called identified
+BOUND_FACTOR = 30.0    #: the estimate stays within this factor of the prior
+MAX_STEP_LOG = math.log(4.0)   #: largest change of a log-parameter in one iteration
+RIDGE = 1.0            #: added to the information in the step (not in the standard errors)
+#: rise of -log L at the prior beyond which a weak parameter keeps its estimate (chi-square 1 dof
+#: at 0.999: 10.8 / 2)
+LR_GAP = 5.4
+VECTOR_KINDS = ("hor", "sun", "moon")
+AIDING = {"gps_pos", "gps_vel", "hor", "sun", "moon"}
+RAD_S_TO_DEG_RTH = math.degrees(1.0) * 60.0   #: rad/sqrt(s) -> deg/sqrt(h)
+
+
+@dataclass(frozen=True)
+class Param:
+    """A tunable parameter: its value in a Tuning (SI), how to set it, the measurement kinds of
+    which it needs at least one, and its TOML entries ``(table, key, factor from SI)``."""
+    name: str
+    unit: str
+    get: Callable
+    set: Callable
+    needs: frozenset
+    toml: tuple
+    applies: Callable = lambda t: None   #: a reason the tuning does not use it, or None
+    to_unit: float = 1.0                 #: SI -> the unit shown
+
+    def entries(self, value: float) -> list:
+        """``[(table, key, value)]`` of the TOML for the SI value."""
+        return [(tb, key, value * f if f is not None else 0.0) for tb, key, f in self.toml]
+
+
+def _set_pair(fieldname: str, target: str):
+    def setter(t: Tuning, v: float) -> Tuning:
+        pairs = dict(getattr(t, fieldname))
+        pairs[target] = v
+        return replace(t, **{fieldname: tuple(sorted(pairs.items()))})
+    return setter
+
+
+def _gm_used(t: Tuning):
+    return "the Gauss-Markov vector states are off (vectors.gm_mode)" if t.vector_gm_mode == "off" else None
+
+
+def _group_used(name: str):
+    return lambda t: f"the {name} state is off" if not getattr(t, name).on else None
+
+
+def _group_param(name: str, unit: str, key: str, factor: float) -> Param:
+    return Param(name, unit, lambda t: getattr(t, name).sigma,
+                 lambda t, v: replace(t, **{name: replace(getattr(t, name), sigma=v)}), frozenset(AIDING),
+                 (("states." + name, key, 1.0 / factor),), _group_used(name), 1.0 / factor)
+
+
+def _params() -> dict:
+    p = {}
+    for tg in VECTOR_KINDS:
+        p[f"vector_white_{tg}"] = Param(f"vector_white_{tg}", "", lambda t, tg=tg: t.vector_white_for(tg),
+                                        _set_pair("vector_white_by_target", tg), frozenset({tg}),
+                                        (("vectors", f"white_noise_{tg}", 1.0),))
+        p[f"vector_cov_scale_{tg}"] = Param(f"vector_cov_scale_{tg}", "x", lambda t, tg=tg: t.vector_cov_scale_for(tg),
+                                            _set_pair("vector_cov_scale_by_target", tg), frozenset({tg}),
+                                            (("vectors", f"cov_scale_{tg}", 1.0),))
+    p["correlation_time"] = Param("correlation_time", "s", lambda t: t.correlation_time_s,
+                                  lambda t, v: replace(t, correlation_time_s=v), frozenset(VECTOR_KINDS),
+                                  (("vectors", "correlation_time_s", 1.0),), _gm_used)
+    p["gyro_white"] = Param("gyro_white", "deg/sqrt(h)", lambda t: t.gyro_white, lambda t, v: replace(t, gyro_white=v),
+                            frozenset(AIDING), (("imu", "gyro_white_noise_deg_rth", RAD_S_TO_DEG_RTH),
+                                                ("imu", "gyro_white_noise_extra_deg_rth", None)),
+                            to_unit=RAD_S_TO_DEG_RTH)
+    p["accel_white"] = Param("accel_white", "mg/sqrt(Hz)", lambda t: t.accel_white,
+                             lambda t, v: replace(t, accel_white=v), frozenset(AIDING),
+                             (("imu", "accel_white_noise_mg_rthz", 1.0 / (1e-3 * G0)),
+                              ("imu", "accel_white_noise_extra_mg_rthz", None)), to_unit=1.0 / (1e-3 * G0))
+    p["gyro_bias"] = _group_param("gyro_bias", "deg/h", "sigma_deg_h", math.radians(1.0) / 3600.0)
+    p["accel_bias"] = _group_param("accel_bias", "mg", "sigma_mg", 1e-3 * G0)
+    p["gps_noise_scale"] = Param("gps_noise_scale", "x", lambda t: t.gps_noise_scale,
+                                 lambda t, v: replace(t, gps_noise_scale=v), frozenset({"gps_pos", "gps_vel"}),
+                                 (("gps", "noise_scale", 1.0),))
+    return p
+
+
+#: every tunable parameter by name
+PARAMS = _params()
+#: the parameters ``tune`` estimates unless told otherwise (those the flight can carry; the ones
+#: without measurements are dropped with the reason)
+DEFAULT_PARAMS = ("vector_white_hor", "vector_white_sun", "vector_white_moon", "vector_cov_scale_hor",
+                  "vector_cov_scale_sun", "vector_cov_scale_moon", "correlation_time", "gyro_white", "accel_white",
+                  "gyro_bias", "accel_bias", "gps_noise_scale")
+
+
+@dataclass
+class TuneInputs:
+    """What the filter replays: the IMU, initial state, GPS, vectors, mountings and lever arm."""
+    imu: object
+    init: object
+    gps: GpsData | None
+    vectors: VectorData | None
+    R_bc: list
+    lever_b: tuple = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class Estimate:
+    name: str
+    prior: float          #: SI
+    value: float          #: SI (the prior when unidentified)
+    se_log: float         #: standard error of the log-parameter (inf: not identified at all)
+    identified: bool
+    reason: str | None = None   #: why it is not identified
+    unit: str = ""
+    to_unit: float = 1.0
+    #: the estimate is written without a standard error: at the search bound, or one-sided
+    #: (the likelihood flat on one side, the prior rejected)
+    at_bound: bool = False
+
+    def line(self) -> str:
+        v, p = self.value * self.to_unit, self.prior * self.to_unit
+        if self.identified:
+            return (f"{self.name:24s} {v:11.4g} {self.unit:12s} +- {100 * self.se_log:5.1f} % "
+                    f"(prior {p:.4g}, x{self.value / self.prior:.3g})")
+        if self.at_bound:
+            return f"{self.name:24s} {v:11.4g} {self.unit:12s} {self.reason} (prior {p:.4g})"
+        return f"{self.name:24s} {p:11.4g} {self.unit:12s} not identified: {self.reason}"
+
+
+@dataclass
+class TuneResult:
+    estimates: list
+    tuning: Tuning
+    nll_prior: float
+    nll: float
+    evaluations: int
+    seconds: float
+    converged: bool
+    n_measurements: int
+    rounds: int
+    warnings: list = field(default_factory=list)
+
+    @property
+    def seconds_per_evaluation(self) -> float:
+        return self.seconds / max(self.evaluations, 1)
+
+    def by_name(self) -> dict:
+        return {e.name: e for e in self.estimates}
+
+    def report(self) -> str:
+        lines = [e.line() for e in self.estimates]
+        lines.append(f"-log L {self.nll_prior:.2f} at the prior -> {self.nll:.2f} ({self.n_measurements} measurement "
+                     f"blocks, {self.rounds} gating round(s)); {self.evaluations} filter runs, "
+                     f"{self.seconds_per_evaluation:.2f} s each, {self.seconds:.0f} s in all"
+                     + ("" if self.converged else "; NOT CONVERGED: the best point is reported"))
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+class Objective:
+    """-log L of the innovations over a fixed measurement set, as a function of log-parameters
+    (module docstring). Counts the filter runs and their time; ``progress`` (a tqdm bar or None)
+    is advanced by one per run."""
+
+    def __init__(self, inputs: TuneInputs, base: Tuning, params: list, progress=None):
+        self.inputs, self.base, self.params, self.progress = inputs, base, params, progress
+        self.theta0 = np.log([p.get(base) for p in params])
+        self.evaluations, self.seconds = 0, 0.0
+        self.gps, self.vectors = inputs.gps, inputs.vectors
+        self.keys = None
+        self.one_sided = {}
+
+    def tuning(self, theta, *, gate: bool = False) -> Tuning:
+        t = self.base
+        for p, th in zip(self.params, theta):
+            t = p.set(t, float(math.exp(th)))
+        # gate off (the set is fixed) and no divergence recovery (it follows the gate); the
+        # considered groups estimated (the optimal filter of the model, whose innovations are white)
+        return t if gate else replace(estimated_everywhere(t), gate_probability=1.0, recovery_gated_fixes=0)
+
+    def run(self, tuning: Tuning, gps=None, vectors=None):
+        inp = self.inputs
+        t0 = time.perf_counter()
+        res = run(inp.imu, inp.init, tuning, gps=gps if gps is not None else self.gps,
+                  vectors=vectors if vectors is not None else self.vectors, R_bc=inp.R_bc, lever_b=inp.lever_b,
+                  store_for_smoother=False, unaided=False)
+        self.seconds += time.perf_counter() - t0
+        self.evaluations += 1
+        if self.progress is not None:
+            self.progress.update(1)
+        return res
+
+    def fix_set(self, theta) -> int:
+        """The measurements the gate accepts at ``theta`` become the fixed set (the others are
+        removed from the inputs). Returns how many blocks changed against the previous set."""
+        res = self.run(self.tuning(theta, gate=True), self.inputs.gps, self.inputs.vectors)
+        gated = {(i.t_ns, i.kind, i.camera) for i in res.innovations if not i.accepted and i.reason == "gated"}
+        self.gps, self.vectors = _without(self.inputs.gps, self.inputs.vectors, gated)
+        keys = {(i.t_ns, i.kind, i.camera) for i in res.innovations if i.accepted}
+        changed = len(keys ^ self.keys) if self.keys is not None else len(keys)
+        self.keys = keys
+        return changed
+
+    def __call__(self, theta):
+        """``(-log L, InnovationSet)`` at ``theta``."""
+        iset = innovation_set(self.run(self.tuning(theta)).innovations)
+        return negative_log_likelihood(iset)[0], iset
+
+
+def estimated_everywhere(t: Tuning) -> Tuning:
+    """``t`` with every considered ("C") error group estimated ("E"). The prediction-error
+    decomposition is the likelihood only for the optimal filter: a Schmidt filter's innovations
+    have the right covariance but are correlated in time (the considered errors are not
+    corrected), so their product of marginals is not the likelihood of the measurements."""
+    kw = {nm: replace(getattr(t, nm), mode="E") for nm in IMU_GROUPS + ("camera_misalignment", "camera_clock_offset")
+          if getattr(t, nm).mode == "C"}
+    if t.vector_gm_mode == "C":
+        kw["vector_gm_mode"] = "E"
+    return replace(t, **kw)
+
+
+def _without(gps, vectors, gated: set):
+    """The inputs without the gated blocks: a fix whose position is gated is removed, one whose
+    velocity alone is gated keeps its position (velocity NaN); gated vectors are removed."""
+    if gps is not None:
+        t = np.asarray(gps.t_ns, np.int64)
+        drop_pos = np.array([(int(x), "gps_pos", -1) in gated for x in t], bool)
+        drop_vel = np.array([(int(x), "gps_vel", -1) in gated for x in t], bool)
+        if drop_pos.any() or drop_vel.any():
+            keep = ~drop_pos
+            v = None if gps.v_e is None else np.array(gps.v_e, float)
+            if v is not None:
+                v[drop_vel] = np.nan
+            gps = GpsData(t[keep], np.asarray(gps.x_e)[keep], np.asarray(gps.P_x)[keep],
+                          None if v is None else v[keep], None if gps.P_v is None else np.asarray(gps.P_v)[keep])
+    if vectors is not None:
+        keep = np.array([(int(t), str(k), int(c)) not in gated
+                         for t, k, c in zip(vectors.t_ns, vectors.target, vectors.camera)], bool)
+        if not keep.all():
+            vectors = VectorData(np.asarray(vectors.t_ns)[keep], np.asarray(vectors.camera)[keep],
+                                 np.asarray(vectors.target)[keep], np.asarray(vectors.e_c)[keep],
+                                 np.asarray(vectors.P_c)[keep])
+    return gps, vectors
+
+
+def _derivatives(obj: Objective, theta, f0: float, iset0, mapper=map):
+    """Gradient (p,), Fisher information (p, p) and the observed Hessian's diagonal (p,) at
+    ``theta`` from the 2p runs at theta +- STEP e_i (central differences)."""
+    p = theta.size
+    pts = [theta + s * STEP * np.eye(p)[i] for i in range(p) for s in (1.0, -1.0)]
+    out = list(mapper(obj, pts))
+    fp, fm = np.array([o[0] for o in out[0::2]]), np.array([o[0] for o in out[1::2]])
+    grad = (fp - fm) / (2 * STEP)
+    hdiag = (fp - 2 * f0 + fm) / STEP ** 2
+    info = np.zeros((p, p))
+    for d, (idx, nu0, S0) in iset0.by_dim.items():
+        dnu, dS = np.zeros((p, idx.size, d)), np.zeros((p, idx.size, d, d))
+        for i in range(p):
+            (nup, Sp), (num, Sm) = _aligned(out[2 * i][1], iset0, d), _aligned(out[2 * i + 1][1], iset0, d)
+            dnu[i], dS[i] = (nup - num) / (2 * STEP), (Sp - Sm) / (2 * STEP)
+        info += fisher_information(S0, dS, dnu)
+    return grad, info, hdiag
+
+
+def _aligned(iset, ref, d):
+    """The blocks of dimension d of ``iset`` in the order of ``ref`` (same fixed set; a block the
+    run did not apply, e.g. a non-positive-definite S, contributes no derivative)."""
+    idx_r = ref.by_dim[d][0]
+    if iset.keys == ref.keys:
+        return iset.by_dim[d][1:]
+    pos = {k: i for i, k in enumerate(iset.keys)}
+    where = {int(j): n for n, j in enumerate(iset.by_dim.get(d, (np.zeros(0, int),))[0])}
+    nu_r, S_r = ref.by_dim[d][1], ref.by_dim[d][2]
+    nu, S = nu_r.copy(), S_r.copy()
+    for n, j in enumerate(idx_r):
+        k = pos.get(ref.keys[j])
+        if k is not None and k in where:
+            nu[n], S[n] = iset.by_dim[d][1][where[k]], iset.by_dim[d][2][where[k]]
+    return nu, S
+
+
+def _solve_step(grad, info, lam, free):
+    """Levenberg-Marquardt scoring step on the free parameters (the others stay), with a unit
+    ridge (:data:`RIDGE`) so that a direction the flight barely informs moves by at most its
+    gradient, and within the trust region. Returns ``(step, predicted decrease)``."""
+    p = grad.size
+    step = np.zeros(p)
+    if not free.any():
+        return step, 0.0
+    I = info[np.ix_(free, free)]
+    A = I + lam * np.diag(np.diag(I)) + RIDGE * np.eye(int(free.sum()))
+    step[free] = -np.linalg.solve(A, grad[free])
+    decrease = float(-0.5 * grad[free] @ step[free])
+    big = np.max(np.abs(step))
+    if big > MAX_STEP_LOG:
+        step *= MAX_STEP_LOG / big
+    return step, decrease
+
+
+def _variances(info: np.ndarray) -> np.ndarray:
+    """Diagonal of inv(info); infinite for a parameter with a component along a direction the
+    information does not fix (eigenvalue below 1e-10 of the largest)."""
+    w, V = np.linalg.eigh(0.5 * (info + info.T))
+    tol = max(float(w.max(initial=0.0)), 1e-300) * 1e-10
+    good = w > tol
+    var = (V[:, good] ** 2) @ (1.0 / w[good])
+    flat = np.any(np.abs(V[:, ~good]) > 1e-3, axis=1)
+    return np.where(flat, np.inf, var)
+
+
+def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, mapper=map):
+    """Fisher scoring from ``theta0`` (module docstring); converged when the predicted or the
+    achieved decrease of -log L is below ``tol`` (0.1: well below the 0.5 that one standard
+    error moves it). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
+    lo, hi = obj.theta0 - math.log(BOUND_FACTOR), obj.theta0 + math.log(BOUND_FACTOR)
+    theta = np.clip(np.asarray(theta0, float), lo, hi)
+    f, iset = obj(theta)
+    lam, converged = 1e-3, False
+    for _ in range(max_iter):
+        grad, info, hdiag = _derivatives(obj, theta, f, iset, mapper)
+        free = ~(((theta <= lo + 1e-9) & (grad > 0)) | ((theta >= hi - 1e-9) & (grad < 0)))
+        decrease = _solve_step(grad, info, 0.0, free)[1]
+        log.info("tune: -log L %.3f, predicted decrease %.3g, %d of %d parameters free, theta/prior %s", f, decrease,
+                 int(free.sum()), free.size, np.round(np.exp(theta - obj.theta0), 3).tolist())
+        if decrease < tol:
+            converged = True
+            break
+        for _try in range(6):
+            step = _solve_step(grad, info, lam, free)[0]
+            th_new = np.clip(theta + step, lo, hi)
+            f_new, iset_new = obj(th_new)
+            if f_new < f:
+                gain, theta, f, iset, lam = f - f_new, th_new, f_new, iset_new, max(lam / 10, 1e-6)
+                break
+            lam *= 10
+        else:
+            # no decrease along the damped steps: the optimum within the objective's precision
+            # when the predicted decrease is small, else the best point so far
+            converged = decrease < 0.05
+            break
+        if gain < tol:   # the step gained less than tol: converged (information at the new point)
+            converged = True
+            grad, info, hdiag = _derivatives(obj, theta, f, iset, mapper)
+            break
+    else:
+        grad, info, hdiag = _derivatives(obj, theta, f, iset, mapper)
+    return theta, f, iset, info, hdiag, converged
+
+
+def available(names, base: Tuning, kinds: set) -> tuple[list, dict]:
+    """The parameters of ``names`` the flight and tuning can estimate, and the reason for each
+    of the others."""
+    unknown = [n for n in names if n not in PARAMS]
+    if unknown:
+        raise ValueError(f"params: unknown parameter {unknown[0]!r}; expected some of {sorted(PARAMS)}")
+    ok, why = [], {}
+    for n in names:
+        p = PARAMS[n]
+        reason = p.applies(base)
+        if reason is None and not (p.needs & kinds):
+            reason = f"the flight has no accepted {'/'.join(sorted(p.needs))} measurement"
+        if reason is None and p.get(base) <= 0:
+            reason = "its prior is zero (the tuning does not model it)"
+        if reason:
+            why[n] = reason
+        else:
+            ok.append(p)
+    return ok, why
+
+
+def tune(inputs: TuneInputs, base: Tuning, names=DEFAULT_PARAMS, *, max_iter: int = 20, max_rounds: int = 3,
+         progress=None, mapper=map) -> TuneResult:
+    """Maximum-likelihood estimates of the parameters ``names`` (module docstring). The filter's
+    per-measurement rejection warnings are silenced during the runs (each run would repeat them)."""
+    nav_log = logging.getLogger("nav.navigator")
+    level = nav_log.level
+    nav_log.setLevel(logging.ERROR)
+    try:
+        return _tune(inputs, base, names, max_iter, max_rounds, progress, mapper)
+    finally:
+        nav_log.setLevel(level)
+
+
+def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneResult:
+    t_start = time.perf_counter()
+    obj0 = Objective(inputs, base, [], progress)
+    obj0.fix_set(np.zeros(0))
+    kinds = {k[1] for k in obj0.keys}
+    params, why = available(list(names), base, kinds)
+    obj = Objective(inputs, base, params, progress)
+    obj.gps, obj.vectors, obj.keys = obj0.gps, obj0.vectors, obj0.keys
+    warn = []
+    f_prior = obj(obj.theta0)[0] if params else float("nan")
+    theta, rounds, converged, f, iset, info = obj.theta0.copy(), 0, True, f_prior, None, np.zeros((0, 0))
+    while params and rounds < max_rounds:
+        rounds += 1
+        theta, f, iset, info, _, converged = optimise(obj, theta, max_iter=max_iter, mapper=mapper)
+        weak = _weak(info, _at_bound(obj, theta))
+        weak &= ~_one_sided(obj, theta, f, weak)
+        if weak.any() and not weak.all():
+            theta, f, iset, info, se, converged = _refit(obj, theta, weak, max_iter, mapper)
+        changed = obj.fix_set(theta)
+        if changed == 0:
+            break
+        log.info("tune: the gate at the estimate changes %d measurement blocks; optimising again", changed)
+        if rounds == max_rounds:
+            warn.append(f"the gated measurement set still changes ({changed} blocks) after {rounds} rounds")
+    if not converged:
+        warn.append("the optimisation did not converge within its iterations: the best point is reported")
+    ests = _estimates(obj, params, theta, info, why, base)
+    tuned = base
+    for e in ests:
+        tuned = PARAMS[e.name].set(tuned, e.value) if (e.identified or e.at_bound) else tuned
+    warn += [f"{e.name} = {e.value * e.to_unit:.4g} {e.unit} has no standard error: {e.reason}"
+             for e in ests if e.at_bound]
+    n_meas = len(obj.keys) if obj.keys is not None else 0
+    for w in warn:
+        warnings.warn(w, RuntimeWarning, stacklevel=2)
+    return TuneResult(ests, tuned, f_prior, f, obj.evaluations + obj0.evaluations,
+                      time.perf_counter() - t_start, converged, n_meas, rounds, warn)
+
+
+def _one_sided(obj: Objective, theta, f: float, weak) -> np.ndarray:
+    """Of the weak parameters, those whose prior the flight rejects: -log L rises by more than
+    :data:`LR_GAP` when the parameter alone goes back to its prior (the likelihood is flat on one
+    side of the estimate only, e.g. a white noise below what the other errors let the flight
+    see). They keep their estimate, without a standard error (``obj.one_sided``: name -> rise)."""
+    out = np.zeros(theta.size, bool)
+    for i in np.flatnonzero(weak):
+        th = theta.copy()
+        th[i] = obj.theta0[i]
+        rise = obj(th)[0] - f
+        if rise > LR_GAP:
+            out[i] = True
+            obj.one_sided[obj.params[i].name] = rise
+    return out
+
+
+def _weak(info: np.ndarray, at_bound: np.ndarray) -> np.ndarray:
+    """The parameters the flight does not identify: repeatedly the one with the largest standard
+    error above :data:`SE_LOG_MAX` (the others' errors taken with it fixed), so that of two
+    parameters the flight only constrains together, one is fixed and the other estimated."""
+    keep = ~at_bound
+    weak = np.zeros(at_bound.size, bool)
+    while keep.any():
+        idx = np.flatnonzero(keep)
+        se = np.sqrt(_variances(info[np.ix_(idx, idx)]))
+        if se.max() < SE_LOG_MAX:
+            break
+        worst = idx[int(np.argmax(se))]
+        weak[worst], keep[worst] = True, False
+    return weak
+
+
+def _refit(obj: Objective, theta, weak, max_iter, mapper):
+    """Re-estimate the identified parameters with the weak ones at their prior."""
+    keep = ~weak
+    sub = Objective(obj.inputs, obj.base, [p for p, k in zip(obj.params, keep) if not k], obj.progress)
+    base_w = sub.tuning(sub.theta0, gate=True)   # weak ones at their prior (the base's values)
+    sub = Objective(obj.inputs, base_w, [p for p, k in zip(obj.params, keep) if k], obj.progress)
+    sub.gps, sub.vectors, sub.keys = obj.gps, obj.vectors, obj.keys
+    th, f, iset, info_k, _, conv = optimise(sub, theta[keep], max_iter=max_iter, mapper=mapper)
+    obj.evaluations += sub.evaluations
+    obj.seconds += sub.seconds
+    full = obj.theta0.copy()
+    full[keep] = th
+    p = theta.size
+    info = np.zeros((p, p))
+    info[np.ix_(keep, keep)] = info_k
+    se = np.full(p, np.inf)
+    se[keep] = np.sqrt(_variances(info_k))
+    return full, f, iset, info, se, conv
+
+
+def _at_bound(obj: Objective, theta) -> np.ndarray:
+    return np.abs(np.abs(theta - obj.theta0) - math.log(BOUND_FACTOR)) < 1e-9
+
+
+def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> list:
+    out = []
+    if params:
+        atb = _at_bound(obj, theta)
+        keep = np.diag(info) > 0
+        se = np.full(len(params), np.inf)
+        if keep.any():
+            se[keep] = np.sqrt(_variances(info[np.ix_(keep, keep)]))
+        for p, th, s, b in zip(params, theta, se, atb):
+            ident = bool(s < SE_LOG_MAX) and not b
+            reason = None if ident else (f"flat likelihood: standard error of log {p.name} {s:.2f} "
+                                         f"(> ln 2, a factor-2 1-sigma)")
+            if b:
+                reason = f"at the bound of the search (x{math.exp(th - math.log(p.get(base))):.3g} of the prior)"
+            elif not ident and p.name in obj.one_sided:
+                b = True
+                reason = (f"one-sided: no standard error, but -log L is {obj.one_sided[p.name]:.1f} higher at the "
+                          f"prior (x{math.exp(th - math.log(p.get(base))):.3g} of the prior kept)")
+            out.append(Estimate(p.name, p.get(base), math.exp(th) if (ident or b) else p.get(base), float(s), ident,
+                                reason, p.unit, p.to_unit, bool(b)))
+    for n, r in why.items():
+        p = PARAMS[n]
+        out.append(Estimate(n, p.get(base), p.get(base), math.inf, False, r, p.unit, p.to_unit))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# the tuning TOML
+# ------------------------------------------------------------------------------------------------
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, float):
+        return repr(float(f"{v:.6g}"))
+    return str(v)
+
+
+def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: str = "") -> str:
+    """The tuning file: the base file's overrides with the identified estimates on top, each
+    commented with its standard error; the unidentified parameters listed in comments."""
+    tables: dict = {}
+    comments: dict = {}
+    for tb, kv in (base_overrides or {}).items():
+        if tb == "states":
+            for g, gkv in kv.items():
+                tables.setdefault(f"states.{g}", {}).update(gkv)
+        else:
+            tables.setdefault(tb, {}).update(kv)
+    lines = [f"# {ln}" if ln else "#" for ln in header.splitlines()]
+    for e in result.estimates:
+        if e.at_bound:
+            for tb, key, val in PARAMS[e.name].entries(e.value):
+                tables.setdefault(tb, {})[key] = val
+                comments[(tb, key)] = f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}"
+            continue
+        if not e.identified:
+            lines.append(f"# {e.name}: not identified ({e.reason}); kept at {e.prior * e.to_unit:.4g} {e.unit}")
+            continue
+        for tb, key, val in PARAMS[e.name].entries(e.value):
+            tables.setdefault(tb, {})[key] = val
+            comments[(tb, key)] = (f"ML estimate, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
+                                   f"prior {e.prior * e.to_unit:.4g} {e.unit}")
+    for tb in sorted(tables):
+        lines += ["", f"[{tb}]"]
+        for key, val in tables[tb].items():
+            c = comments.get((tb, key))
+            lines.append(f"{key} = {_toml_value(val)}" + (f"   # {c}" if c else ""))
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,218 @@
+"""Maximum-likelihood tuning (nav/likelihood.py, scenarios/study/tune.py, ``horizon-nav tune``):
+the likelihood against scipy, the Fisher information against its closed form, and the recovery of
+noise parameters set away from the prior on simulated atek coasts whose true noise is known."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
+from nav.navigator import GpsData
+from nav.tuning import Tuning, tuning_from_toml
+from nav.updates import Innovation
+from scenarios.study.tune import PARAMS, Estimate, TuneInputs, TuneResult, available, tune, tuning_toml
+from tests.test_navigator import flight_inputs, matched_tuning, truth_init
+
+NS = 1_000_000_000
+
+
+def test_nll_matches_scipy():
+    from scipy.stats import multivariate_normal
+    rng = np.random.default_rng(0)
+    inns, ref = [], 0.0
+    for k in range(20):
+        d = 2 if k % 2 else 3
+        A = rng.normal(size=(d, d))
+        S = A @ A.T + d * np.eye(d)
+        nu = rng.normal(size=d)
+        inns.append(Innovation(k, "hor" if d == 2 else "gps_pos", 0, nu, S, float(nu @ np.linalg.solve(S, nu)), True, None))
+        ref -= multivariate_normal(np.zeros(d), S).logpdf(nu)
+    inns.append(Innovation(99, "sun", 0, np.ones(2), np.eye(2), 2.0, False, "gated"))   # not applied: left out
+    f, terms = negative_log_likelihood(innovation_set(inns))
+    assert f == pytest.approx(ref, rel=1e-12) and terms.size == 20
+
+
+def test_fisher_information_closed_form():
+    """S = theta S0 for every block, innovations independent of theta: the information of log
+    theta is d m / 2 (m blocks of dimension d), whatever S0."""
+    rng = np.random.default_rng(1)
+    m, d = 50, 2
+    A = rng.normal(size=(m, d, d))
+    S = A @ np.swapaxes(A, 1, 2) + np.eye(d)
+    I = fisher_information(S, S[None], np.zeros((1, m, d)))
+    assert I[0, 0] == pytest.approx(d * m / 2, rel=1e-12)
+
+
+def test_tuning_toml_keys_round_trip():
+    """The new tuning keys parse, and every parameter's TOML entries set what it reads."""
+    t = tuning_from_toml("[vectors]\nwhite_noise_sun = 0.001\ncov_scale_hor = 2.0\n[gps]\nnoise_scale = 1.5\n"
+                         "[filter]\nfirst_update_iterations = 2\n")
+    assert t.vector_white_for("sun") == 0.001 and t.vector_white_for("hor") == Tuning().vector_white
+    assert t.vector_cov_scale_for("hor") == 2.0 and t.gps_noise_scale == 1.5 and t.first_update_iterations == 2
+    for bad in ("[gps]\nnoise_scale = 0\n", "[vectors]\ncov_scale_sun = 0\n", "[vectors]\nwhite_noise_mars = 1\n",
+                "[filter]\nfirst_update_iterations = -1\n"):
+        with pytest.raises(ValueError):
+            tuning_from_toml(bad)
+    ests = [Estimate(n, p.get(Tuning()), 1.7 * p.get(Tuning()), 0.1, True) for n, p in PARAMS.items()]
+    res = TuneResult(ests, Tuning(), 0.0, 0.0, 1, 1.0, True, 1, 1)
+    t = tuning_from_toml(tuning_toml(res, {"filter": {"gate_probability": 0.999}}))
+    assert t.gate_probability == 0.999
+    for name, p in PARAMS.items():
+        assert p.get(t) == pytest.approx(1.7 * p.get(Tuning()), rel=1e-5), name
+
+
+# ------------------------------------------------------------------------------------------------
+# recovery on simulated coasts
+# ------------------------------------------------------------------------------------------------
+
+PRIOR_WHITE = 0.002          #: prior vector white noise (unit-vector units) of both targets
+VEC_GM_DEG = 0.05            #: the vision error the simulated P_c reports (Gauss-Markov, T_c = 20 s)
+
+
+@pytest.fixture(scope="module")
+def coast():
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
+    return simulate_flight(load_scenario("atek"), seed=7, duration=200.0)
+
+
+def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float):
+    """Navigator inputs whose true vector white noise is ``white`` (both targets), whose true
+    Gauss-Markov vector error is ``pc_scale`` times what P_c reports, and whose GPS errors are
+    ``gps_scale`` times the simulator's (the logged covariances unchanged)."""
+    from scenarios.sim.gps import truth_at
+    fi = flight_inputs(fl, 60.0, seed=seed, vec_sigma=math.radians(VEC_GM_DEG) * pc_scale, white=white)
+    fi.vectors.P_c /= pc_scale ** 2
+    g = fi.gps
+    xt, vt = truth_at(fl.truth, (g.t_ns - fl.liftoff_ns) / NS)
+    gps = GpsData(g.t_ns, xt + gps_scale * (g.x_e - xt), g.P_x, vt + gps_scale * (g.v_e - vt), g.P_v)
+    return TuneInputs(fi.imu, truth_init(fi), gps, fi.vectors, fi.R_bc_nominal)
+
+
+def base_tuning() -> Tuning:
+    """The simulated IMU's matched tuning with the prior vector white noise."""
+    return matched_tuning().with_(vector_white=PRIOR_WHITE)
+
+
+def check_recovery(res, truth: dict):
+    """Identified parameters within 30 % of the truth; returns (max relative error, covered at
+    3 sigma per parameter)."""
+    est = res.by_name()
+    rel, cover = {}, {}
+    for name, true in truth.items():
+        e = est[name]
+        if e.identified:
+            rel[name] = abs(e.value / true - 1)
+            cover[name] = abs(math.log(e.value / true)) < 3 * e.se_log
+    return rel, cover
+
+
+def test_tune_recovers_noise_parameters(coast):
+    """One draw, three parameters away from the prior (vector white noise x0.3 of its prior on
+    both targets, Gauss-Markov vector error x2.5 of what P_c reports, GPS errors x2): all three
+    identified, each within 30 % of the truth (the issue's bound; the standard errors are
+    3-10 %, so 30 % is > 3 sigma) and within 3 standard errors of it."""
+    truth = {"vector_white_hor": 0.3 * PRIOR_WHITE, "vector_cov_scale_hor": 2.5, "gps_noise_scale": 2.0}
+    inp = draw(coast, 11, truth["vector_white_hor"], truth["vector_cov_scale_hor"], truth["gps_noise_scale"])
+    res = tune(inp, base_tuning(), list(truth))
+    print(res.report())
+    rel, cover = check_recovery(res, truth)
+    assert set(rel) == set(truth), res.report()
+    assert max(rel.values()) < 0.30, rel
+    assert all(cover.values()), (rel, res.report())
+    assert res.converged and res.evaluations < 150
+    text = tuning_toml(res)
+    t = tuning_from_toml(text)
+    assert t.gps_noise_scale == pytest.approx(res.by_name()["gps_noise_scale"].value, rel=1e-5)
+
+
+def test_missing_measurements_named(coast):
+    """Without vectors the vector parameters are unidentified with the reason; the GPS scale is
+    still estimated."""
+    inp = draw(coast, 12, 0.0, 1.0, 1.0)
+    inp.vectors = None
+    params, why = available(["vector_white_sun", "gps_noise_scale"], base_tuning(), {"gps_pos", "gps_vel"})
+    assert [p.name for p in params] == ["gps_noise_scale"]
+    assert "no accepted sun measurement" in why["vector_white_sun"]
+    with pytest.raises(ValueError, match="unknown parameter 'nonsense'"):
+        available(["nonsense"], base_tuning(), set())
+
+
+@pytest.mark.slow
+def test_tune_coverage_20_draws(coast):
+    """20 draws whose true vector white noise, Gauss-Markov scale and GPS noise scale are drawn
+    log-uniformly x0.3..x3 away from the prior, on the 140 s coast: the standard error covers
+    the error at 3 sigma in >= 90 % of the (draw, parameter) cases (the issue's acceptance; a
+    correct standard error covers 99.7 %, measured 98 % of 58), and every parameter identified
+    to 10 % (1 sigma) is within 30 % of the truth. The Gauss-Markov scale on this short coast is
+    identified to 10-20 % only, so its error reaches 30-50 % in a few draws (inside 3 sigma)."""
+    rng = np.random.default_rng(2024)
+    rels, covers, tight = [], [], []
+    for k in range(20):
+        f = np.exp(rng.uniform(math.log(0.3), math.log(3.0), 3))
+        truth = {"vector_white_hor": f[0] * PRIOR_WHITE, "vector_cov_scale_hor": f[1], "gps_noise_scale": f[2]}
+        res = tune(draw(coast, 100 + k, truth["vector_white_hor"], f[1], f[2]), base_tuning(), list(truth))
+        rel, cover = check_recovery(res, truth)
+        print(k, {n: f"{100 * v:.1f} % (SE {100 * res.by_name()[n].se_log:.1f} %)" for n, v in rel.items()}, cover)
+        rels += list(rel.values())
+        covers += list(cover.values())
+        tight += [v for n, v in rel.items() if res.by_name()[n].se_log <= 0.1]
+    print(f"max relative error {100 * max(rels):.1f} % (SE <= 10 %: {100 * max(tight):.1f} %), "
+          f"covered {np.mean(covers):.2f} of {len(covers)}")
+    assert np.mean(covers) >= 0.90
+    assert max(tight) < 0.30
+
+
+def test_iterated_vector_update_reaches_the_map_point(coast):
+    """Error-free vectors, a 15 deg initial attitude error (10 deg sigma per axis, mountings
+    known): the horizons of the first epochs leave the rotation about the nadir; the first epoch
+    with a Sun vector then corrects ~11 deg in one update, where the one-step (linearised) update
+    leaves an error of second order in the correction (measured 0.07 deg). Relinearising about
+    the updated state (the iterated EKF, 3 Gauss-Newton steps) removes it down to the prior's
+    pull (measured 0.007 deg); the test asks a factor 3."""
+    from nav.navigator import ImuData, InitialState, run
+    from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+    from nav.tuning import StateGroupTuning
+    from tests.test_navigator import attitude_errors
+    fi = flight_inputs(coast, 60.0, seed=3, noise=False)
+    i0 = truth_init(fi)
+    q0 = matrix_to_quat(rotvec_to_matrix(np.radians([10.0, -8.0, 9.0])) @ quat_to_matrix(i0.q_eb))
+    init = InitialState(i0.t_ns, i0.x_e, i0.v_e, q0)
+    v = fi.vectors
+    t_sun = int(v.t_ns[(v.target == "sun") & (v.t_ns >= i0.t_ns)].min())
+    stop = int(np.searchsorted(fi.imu.t_ns, t_sun)) + 2
+    imu = ImuData(fi.imu.t_ns[:stop], fi.imu.f_b[:stop], fi.imu.w_b[:stop], fi.imu.sample)
+    base = matched_tuning().with_(init_att_sigma=math.radians(10.0), vector_gm_mode="off",
+                                  camera_misalignment=StateGroupTuning("off", 0.0), vector_white=1e-5)
+    err = {}
+    for n in (0, 3):
+        res = run(imu, init, base.with_(first_update_iterations=n), vectors=v, R_bc=[c.R_bc for c in coast.cameras],
+                  store_for_smoother=False, unaided=False)
+        k = fi.truth_idx[fi.start_idx + res.t_ns.size - 1]
+        err[n] = float(np.degrees(np.linalg.norm(attitude_errors(res.q_eb[-1], fi.truth.q_eb[k]))))
+    print(f"attitude error after the first Sun epoch: one-step {err[0]:.4f} deg, iterated {err[3]:.4f} deg")
+    assert err[3] < err[0] / 3
+
+
+def test_cli_tune(vlog, tmp_path, capsys):
+    """``horizon-nav tune`` on a simulated log with the Earth target only: the Sun's white noise
+    is reported unidentified with the reason, the GPS scale is estimated (the simulator's GPS
+    errors follow its logged covariances: scale 1 within 4 standard errors), and the tuning file
+    is written and reads back."""
+    from scenarios.cli._main import main
+    from scenarios.config.tuning import load_tuning
+    out = tmp_path / "t.toml"
+    rc = main(["tune", str(vlog), "--from", "T+60", "--to", "T+140", "--targets", "earth", "--quiet",
+               "--params", "vector_white_sun,gps_noise_scale", "-o", str(out)])
+    text = capsys.readouterr().out
+    print(text)
+    assert rc == 0
+    assert "vector_white_sun" in text and "no accepted sun measurement" in text
+    assert "filter runs" in text and "s each" in text
+    t = load_tuning(out)
+    e = [ln for ln in text.splitlines() if ln.startswith("gps_noise_scale")][0]
+    se = float(e.split("+-")[1].split("%")[0]) / 100
+    assert abs(math.log(t.gps_noise_scale)) < 4 * se
+    assert main(["tune", str(vlog), "--params", "nonsense", "-o", str(out), "--quiet"]) == 2
