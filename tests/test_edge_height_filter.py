@@ -164,3 +164,66 @@ def test_solution_columns_and_summary_report_it():
         assert s["smoothed_km"] == sm.estimates[0, i] / 1e3 and s["smoothed_sigma_km"] == np.sqrt(sm.P[0, i]) / 1e3
     # the vectors moved it from the 45 km prior (15 s: a weaker pull than the full coast's)
     assert np.all(sm.estimates[0, [res.layout[f"h_e_{c}"].start for c in range(2)]] < PRIOR_EDGE_M - 1e3)
+
+
+@pytest.fixture(scope="module")
+def rendered_horizon():
+    """One geometric atek frame (no atmosphere: the edge at 0 km; 230 km, looking 20 deg down: a
+    partial arc), no Sun in the prior (the threshold edge)."""
+    from scenarios.sim import render
+    from tests.poses import pose
+    from tests.test_frontend import CAM, SUN
+    R, x = pose(0.0, 20.0, h=230e3)
+    fr = render.render_frame(CAM, R, x, SUN, None, options=render.RenderOptions.geometric())
+    return CAM, R, x, fr.image
+
+
+def _edge_config(cam, **edge):
+    """The defaults with the edge at the geometric frame's 0 km (prior sigma 20 km) and ``edge`` options."""
+    from vision.frontend import default_config
+    cfg = default_config(cam.fx)
+    return dataclasses.replace(cfg, earth=dataclasses.replace(cfg.earth, atmosphere_m=0.0, atmosphere_sigma_m=20e3,
+                                                              edge=dataclasses.replace(cfg.earth.edge, **edge)))
+
+
+def test_vision_filter_state_vector(rendered_horizon):
+    """``edge.filter_state``: the fixed-height fit's vector (the same as ``estimate = false``), its
+    covariance without the height term (``P_fixed - sigma^2 g g^T``, g from the fixed path's
+    covariance with the height), ``dedge_c = -g``; and ``dedge_c`` is the refit's sensitivity: the
+    fit at 1 km higher moves the vector by ``-dedge_c`` x 1 km to 5 % (the inliers may change by a
+    ray or two between the fits)."""
+    from vision.frontend import FramePrior, process_frame
+    cam, R, x, img = rendered_horizon
+    prior = FramePrior(x, R)
+    fixed = process_frame(img, cam, _edge_config(cam, estimate=False), prior=prior)
+    state_cfg = _edge_config(cam, filter_state=True)
+    st = process_frame(img, cam, state_cfg, prior=prior)
+    a, b = fixed.record("earth"), st.record("earth")
+    sig = state_cfg.earth.atmosphere_sigma_m
+    g = fixed.targets["earth"].edge_cov_c / sig ** 2
+    assert a.dedge_c is None and b.dedge_c is not None and b.edge_height_m == state_cfg.earth.atmosphere_m
+    np.testing.assert_array_equal(a.e_c, b.e_c)
+    np.testing.assert_allclose(b.dedge_c, -g, rtol=1e-12)
+    np.testing.assert_allclose(a.P_c - b.P_c, sig ** 2 * np.outer(g, g), rtol=1e-9, atol=1e-15)
+    assert np.degrees(np.linalg.norm(b.dedge_c)) * 1e3 > 1e-3     # a partial arc: > 0.001 deg per km
+    up = dataclasses.replace(state_cfg, earth=dataclasses.replace(state_cfg.earth,
+                                                                    atmosphere_m=state_cfg.earth.atmosphere_m + 1e3))
+    c = process_frame(img, cam, up, prior=prior).record("earth")
+    np.testing.assert_allclose(c.e_c - b.e_c, -b.dedge_c * 1e3, atol=0.05 * np.linalg.norm(b.dedge_c) * 1e3)
+
+
+def test_vision_rows_carry_the_sensitivity(rendered_horizon):
+    """The replay's vector rows (scenarios/replay/sight.py): a record with ``dedge_c`` gives
+    ``VectorData.dedge_c`` and ``edge_ref_m`` (its fitted height) in time order, NaN for the others;
+    rows without any leave both None (the state then has no column)."""
+    from scenarios.replay.sight import record_row, vector_data
+    from vision.frontend import FramePrior, process_frame
+    cam, R, x, img = rendered_horizon
+    rec = process_frame(img, cam, _edge_config(cam, filter_state=True), prior=FramePrior(x, R)).record("earth")
+    late = dataclasses.replace(rec, t_ns=rec.t_ns + 10)
+    sun = (rec.t_ns + 5, 0, "sun", np.array([0.0, 0.0, 1.0]), np.eye(3) * 1e-8)
+    vd = vector_data([record_row(late, [rec.camera]), sun, record_row(rec, [rec.camera])])
+    assert vd.target.tolist() == ["hor", "sun", "hor"]
+    np.testing.assert_array_equal(vd.dedge_c[[0, 2]], [rec.dedge_c, rec.dedge_c])
+    assert np.isnan(vd.dedge_c[1]).all() and np.isnan(vd.edge_ref_m[1]) and vd.edge_ref_m[0] == rec.edge_height_m
+    assert vector_data([sun]).dedge_c is None

@@ -439,6 +439,12 @@ class EdgeHeightOptions(_Checks):
         model's height ``LimbOptions.height_m``: an arc that disagrees says the limb profile is not
         the one the model assumes (another camera, another atmosphere), and the threshold edge
         with its wide prior is used instead. 0: always kept.
+    filter_state : the navigation filter estimates the edge height (its ``h_e`` state, one per
+        camera): the direction is the fixed-height fit of the threshold edge at the prior mean
+        ``TargetConfig.atmosphere_m`` (no joint fit, no limb edge: one edge per camera, the one
+        the state describes), ``P_c`` holds the pixel noise only (the height's uncertainty is the
+        filter's, not to be counted twice), and ``VectorRecord.dedge_c`` carries the sensitivity
+        ``d e_c / d h_e`` [1/m], with ``edge_height_m`` the height fitted at.
     """
 
     estimate: bool = True
@@ -447,10 +453,13 @@ class EdgeHeightOptions(_Checks):
     along_sigma_m: float = 3000.0
     along_L_px: float = 600.0
     limb_gate: float = 3.0
+    filter_state: bool = False
 
     def __post_init__(self):
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
+        if not isinstance(self.filter_state, bool):
+            self._bad("filter_state", "true or false")
         self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate"))
         if not self.along_L_px >= 1.0:
             self._bad("along_L_px", ">= 1 px")
