@@ -227,3 +227,18 @@ def test_vision_rows_carry_the_sensitivity(rendered_horizon):
     np.testing.assert_array_equal(vd.dedge_c[[0, 2]], [rec.dedge_c, rec.dedge_c])
     assert np.isnan(vd.dedge_c[1]).all() and np.isnan(vd.edge_ref_m[1]) and vd.edge_ref_m[0] == rec.edge_height_m
     assert vector_data([sun]).dedge_c is None
+
+
+def test_summary_leaves_out_cameras_without_sensitivity():
+    """edge_heights: a camera whose vectors carry no dedge_c is not reported (its state had no
+    measurement), one whose vectors do is."""
+    from types import SimpleNamespace
+
+    from scenarios.replay.summary import edge_heights
+    lay = build_layout(Tuning().with_(edge_height=StateGroupTuning("E", 20e3)), 2)
+    P = np.ones((1, lay.n))
+    res = SimpleNamespace(layout=lay, estimates=np.full((1, lay.n), 45e3), P_diag=P)
+    g = np.array([[1e-7, 0.0, 0.0], [np.nan] * 3])
+    vec = SimpleNamespace(t_ns=np.array([1, 2]), camera=np.array([0, 1]), dedge_c=g)
+    assert list(edge_heights(res, None, [1, 2], vec)) == ["camera_1"]
+    assert list(edge_heights(res, None, [1, 2])) == ["camera_1", "camera_2"]

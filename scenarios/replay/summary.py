@@ -59,7 +59,7 @@ def summarize(rr) -> dict:
             mis[f"camera_{k}"] = {"psi_c_deg": np.degrees(res.misalignment[-1, c]).round(4).tolist(),
                                   "3sigma_deg": np.degrees(3 * res.misalignment_sigma[-1, c]).round(4).tolist()}
     out["misalignment_final"] = mis
-    edge = edge_heights(res, getattr(rr, "smooth", None), cams)
+    edge = edge_heights(res, getattr(rr, "smooth", None), cams, getattr(rr, "vectors", None))
     if edge:
         out["edge_height"] = edge
     sig = np.sqrt(res.P_diag[-1])
@@ -80,16 +80,25 @@ def summarize(rr) -> dict:
     return out
 
 
-def edge_heights(res, smooth, cams) -> dict:
+def edge_heights(res, smooth, cams, vectors=None) -> dict:
     """camera_<k> -> the Earth edge height [km] of the estimated ``h_e`` state: the smoother's
     post-flight value and sigma at the start (a constant state: the same over the flight; None
-    without a smoother) and the forward filter's final value and sigma."""
+    without a smoother) and the forward filter's final value and sigma. Cameras none of whose
+    ``vectors`` (when given) carry a sensitivity ``dedge_c`` are left out: the state had no
+    measurement."""
     lay, out = res.layout, {}
     if res.estimates is None:
         return out
+    seen = None
+    if vectors is not None:
+        g = getattr(vectors, "dedge_c", None)
+        ok = np.zeros(len(vectors.t_ns), bool) if g is None else np.all(np.isfinite(g), axis=1)
+        seen = set(np.asarray(vectors.camera)[ok].tolist())
     for c, k in enumerate(cams):
         name = lay.edge_name(c)
         if not lay.has(name) or not next(g for g in lay.groups if g.name == name).estimated:
+            continue
+        if seen is not None and c not in seen:
             continue
         i = lay[name].start
         d = {"forward_km": float(res.estimates[-1, i] / 1e3), "forward_sigma_km": float(np.sqrt(res.P_diag[-1, i]) / 1e3),
