@@ -242,3 +242,30 @@ def test_summary_leaves_out_cameras_without_sensitivity():
     vec = SimpleNamespace(t_ns=np.array([1, 2]), camera=np.array([0, 1]), dedge_c=g)
     assert list(edge_heights(res, None, [1, 2], vec)) == ["camera_1"]
     assert list(edge_heights(res, None, [1, 2])) == ["camera_1", "camera_2"]
+
+
+def test_image_replay_estimates_the_edge_height(ilog, tmp_path):
+    """The image replay with ``[states.edge_height] mode = "E"`` (the short rendered atek log, 10
+    frames): the vision gives every Earth vector its sensitivity, fitted at the vision's 45 km;
+    both cameras' edge heights are in the summary with a smoothed sigma no larger than the 20 km
+    prior's, and the solution log names the states ``h_e_1``, ``h_e_2``."""
+    from scenarios.flightlog import read_log
+    from scenarios.replay.pipeline import replay
+    from scenarios.replay.summary import format_table, summarize
+    from tests.test_replay import _opt
+    tun = tmp_path / "edge.toml"
+    tun.write_text('[states.edge_height]\nmode = "E"\nsigma_km = 20\n')
+    out = tmp_path / "e.solution.mcap"
+    rr = replay(ilog, _opt(output=str(out), workers=1, tuning=str(tun)))
+    hor = rr.vectors.target == "hor"
+    assert hor.sum() > 0 and np.all(np.isfinite(rr.vectors.dedge_c[hor]))
+    assert np.all(rr.vectors.edge_ref_m[hor] == 45e3)
+    s = summarize(rr)
+    assert set(s["edge_height"]) == {"camera_1", "camera_2"}
+    for d in s["edge_height"].values():
+        assert np.isfinite(d["smoothed_km"]) and 0 < d["smoothed_sigma_km"] <= 20.0 + 1e-9
+    assert "Earth edge height" in format_table(s)
+    sm = read_log(out).nav["smoothed"]
+    assert {"h_e_1", "h_e_2"} <= set(sm.state_names)
+    j = sm.state_names.index("h_e_2")
+    assert np.asarray(sm.state)[0, j] / 1e3 == pytest.approx(s["edge_height"]["camera_2"]["smoothed_km"], rel=1e-12)
