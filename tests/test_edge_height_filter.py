@@ -76,6 +76,11 @@ def test_gauss_markov_propagation():
     P_exp[i, i] += (1 - phi ** 2) * 20e3 ** 2
     np.testing.assert_allclose(st.P, P_exp, rtol=1e-12, atol=1e-12 * np.abs(P_exp).max())
     assert st.edge_hat[0] == pytest.approx(PRIOR_EDGE_M + phi * (40e3 - PRIOR_EDGE_M), rel=1e-14)
+    # the numpy reference forms (error_dynamics + discrete_transition, TransitionBuilder) agree
+    from nav.error_state import TransitionBuilder, discrete_transition, error_dynamics
+    F = error_dynamics(lay, x, np.eye(3), fw[1, 0], fw[1, 1], tun.correlation_time_s, 300.0)
+    assert discrete_transition(lay, F, 0.1)[i, i] == pytest.approx(phi, rel=1e-15)
+    assert TransitionBuilder(lay, tun.correlation_time_s, 300.0)(x, np.eye(3), fw[1, 0], fw[1, 1], 0.1).d[i] == d[i]
 
 
 def edge_flight(t_end: float = 140.0, seed: int = 3):
