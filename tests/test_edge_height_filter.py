@@ -251,7 +251,7 @@ def test_summary_leaves_out_cameras_without_sensitivity():
 
 def test_image_replay_estimates_the_edge_height(ilog, tmp_path):
     """The image replay with ``[states.edge_height] mode = "E"`` (the short rendered atek log, 10
-    frames): the vision gives every Earth vector its sensitivity, fitted at the vision's 45 km;
+    frames): the vision gives every Earth vector its sensitivity, fitted at the vision's prior mean;
     both cameras' edge heights are in the summary with a smoothed sigma no larger than the 20 km
     prior's, and the solution log names the states ``h_e_1``, ``h_e_2``."""
     from scenarios.flightlog import read_log
@@ -264,7 +264,8 @@ def test_image_replay_estimates_the_edge_height(ilog, tmp_path):
     rr = replay(ilog, _opt(output=str(out), workers=1, tuning=str(tun)))
     hor = rr.vectors.target == "hor"
     assert hor.sum() > 0 and np.all(np.isfinite(rr.vectors.dedge_c[hor]))
-    assert np.all(rr.vectors.edge_ref_m[hor] == 45e3)
+    from vision.config import default_config
+    assert np.all(rr.vectors.edge_ref_m[hor] == default_config(800.0).earth.atmosphere_m)
     s = summarize(rr)
     assert set(s["edge_height"]) == {"camera_1", "camera_2"}
     for d in s["edge_height"].values():

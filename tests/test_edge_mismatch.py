@@ -62,3 +62,80 @@ def test_full_study_containment():
     rows = em.run_study(48)
     bad = [(r["case"], r["containment"]) for r in rows if not r["containment"] >= 0.97]
     assert not bad, bad
+
+
+
+def _pinhole_views(shift_m: float, idx):
+    """(camera, default vision config, [(decoded frame, truth nadir e_c, x_e, R_ec)]) of the views
+    ``idx`` of `tests.poses.orbit_poses` (12) through the 25 deg pinhole at 500 km, the renderer's
+    limb lowered by ``-shift_m``."""
+    from nav import ephemeris
+    from scenarios.config.camera import load_camera
+    from scenarios.config.vision import load_vision_config
+    from scenarios.flightlog.jpeg import decode_frame
+    from scenarios.sim import render
+
+    from tests.poses import T0_ORBIT_NS, orbit_poses
+
+    cam = load_camera("scenarios/library/cameras/pinhole_25deg.toml")
+    opts = render.RenderOptions(payload_mask=None, payload_reflections=False, limb_shift_m=shift_m)
+    sun, moon = ephemeris.sun_position_e(T0_ORBIT_NS), ephemeris.moon_position_e(T0_ORBIT_NS)
+    poses = orbit_poses(12)
+    views = []
+    for i in idx:
+        R_ec, x = poses[i]
+        fr = render.render_frame(cam, R_ec, x, sun, moon, seed=i, options=opts, cloud_seed=0)
+        views.append((decode_frame(render.encode_jpeg(fr.image, 90)), fr.e_c_earth, x, R_ec))
+    return cam, load_vision_config(camera=cam), views
+
+
+def _err_deg(rec, e_true) -> float:
+    return math.degrees(math.acos(min(1.0, float(rec.e_c @ e_true))))
+
+
+@pytest.mark.parametrize("shift_m", [-45e3, -35e3])
+def test_narrow_pinhole_low_edge_lands_within_half_a_degree(shift_m):
+    """Real orbital photographs from narrow pinhole cameras put the brightness edge near 0-10 km.
+    Rendered so (the renderer's threshold edge at ~45 km lowered by 45 / 35 km: the edge pixels'
+    true tangent heights 0-1 km / 0-11 km), three views of the 25 deg pinhole at 500 km processed
+    as `horizon-nav vision` does (height and latitude only: the substitute sphere, the threshold
+    edge, the defaults' height prior) land within 0.5 deg of the geocentric nadir and inside their
+    own 3 sigma. The arc carries no height information at this field of view, so the prior decides:
+    at ~0.022 deg per km its mean (15 km) leaves 0.3-0.45 deg; a 45 km mean left 0.85-1.1 deg."""
+    from nav import earth
+    from vision.frontend import FramePrior, process_frame
+
+    cam, cfg, views = _pinhole_views(shift_m, range(3))
+    for i, (img, e_true, x, _) in enumerate(views):
+        lat, _, h = earth.ecef_to_geodetic(x)
+        rec = process_frame(img, cam, cfg, height_m=float(h), prior=FramePrior(lat=float(lat))).record("earth")
+        assert rec is not None
+        err = _err_deg(rec, e_true)
+        assert err <= 0.5 and err <= 3.0 * rec.sigma_deg, (i, err, rec.sigma_deg, rec.edge_height_m)
+
+
+def test_narrow_pinhole_limb_edge_is_cross_checked_by_the_threshold_edge():
+    """With the full prior the limb edge's per-pixel flank heights come from a limb profile model
+    that the lowered limb (edge at 0-11 km) does not follow, and the 25 deg arc cannot check them
+    (its own height sigma ~85 km): on views 0 and 8 that edge puts the nadir ~2.1 deg off, outside
+    its 3 sigma (1.36 deg). The cross-check against the threshold edge (``edge.cross_check_ratio``)
+    rejects it, and the threshold edge's nadir is within 0.5 deg and inside 3 sigma."""
+    import dataclasses
+
+    from nav import ephemeris
+    from vision.frontend import FramePrior, process_frame
+
+    from tests.poses import T0_ORBIT_NS
+
+    cam, cfg, views = _pinhole_views(-35e3, (0, 8))
+    off = dataclasses.replace(cfg, earth=dataclasses.replace(
+        cfg.earth, edge=dataclasses.replace(cfg.earth.edge, cross_check_ratio=0.0)))
+    for img, e_true, x, R_ec in views:
+        prior = FramePrior(x, R_ec, sun_c=R_ec.T @ ephemeris.sun_direction_e(T0_ORBIT_NS, x))
+        bad = process_frame(img, cam, off, prior=prior).record("earth")
+        assert _err_deg(bad, e_true) > 3.0 * bad.sigma_deg        # the unchecked limb edge
+        res = process_frame(img, cam, cfg, prior=prior)
+        rec = res.record("earth")
+        assert not res.targets["earth"].limb_edge and math.isfinite(res.targets["earth"].limb_rejected_m)
+        err = _err_deg(rec, e_true)
+        assert err <= 0.5 and err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg)

@@ -424,6 +424,11 @@ class EdgeHeightOptions(_Checks):
     estimate : fit the edge height with the direction (the cone half-angle free, as 003 §5 fits
         the Sun's radius), the prior as a pseudo-measurement; false: the height is the prior mean
         and its sigma enters the covariance through the tilt (``sigma^2 g g^T``).
+    start_m : height [m] of the threshold edge's cone with which the candidates are scored
+        (RANSAC, `vision.scoring`) and from which the joint fit starts, when the height is
+        estimated; NaN: ``atmosphere_m``. The Earth default is 45 km, where the threshold edge of
+        the renderer's limb sits, on whose frames the scoring is tuned; the fit then moves to the
+        height the arc and the prior N(``atmosphere_m``, ``atmosphere_sigma_m^2``) give.
     limb_prior_sigma_m : 1-sigma [m] of the limb edge's height prior on an unseen camera and
         atmosphere (the limb term of `LimbOptions` is the model's spread where the model holds).
     constrained_ratio : the arc is said to constrain the height (``TargetResult.edge_from_arc``)
@@ -439,20 +444,28 @@ class EdgeHeightOptions(_Checks):
         model's height ``LimbOptions.height_m``: an arc that disagrees says the limb profile is not
         the one the model assumes (another camera, another atmosphere), and the threshold edge
         with its wide prior is used instead. 0: always kept.
+    cross_check_ratio : where the arc's own height sigma exceeds this many limb-prior sigmas (a
+        narrow field of view: ~85 km on a 25 deg pinhole at 500 km; the ATEK fisheye's arcs stay
+        below 3 x 20 km, some not below 20 km) the gate above cannot tell, and the limb edge is kept only when its nadir
+        agrees with the threshold edge's within ``limb_gate`` sigmas of their difference
+        (covariance the sum of theirs); else the threshold edge is used. 0: no cross-check.
     filter_state : the navigation filter estimates the edge height (its ``h_e`` state, one per
         camera): the direction is the fixed-height fit of the threshold edge at the prior mean
         ``TargetConfig.atmosphere_m`` (no joint fit, no limb edge: one edge per camera, the one
-        the state describes), ``P_c`` holds the pixel noise only (the height's uncertainty is the
-        filter's, not to be counted twice), and ``VectorRecord.dedge_c`` carries the sensitivity
-        ``d e_c / d h_e`` [1/m], with ``edge_height_m`` the height fitted at.
+        the state describes; the candidates are scored there too, ``start_m`` unused), ``P_c``
+        holds the pixel noise only (the height's uncertainty is the filter's, not to be counted
+        twice), and ``VectorRecord.dedge_c`` carries the sensitivity ``d e_c / d h_e`` [1/m],
+        with ``edge_height_m`` the height fitted at.
     """
 
     estimate: bool = True
+    start_m: float = math.nan
     limb_prior_sigma_m: float = 20e3
     constrained_ratio: float = 0.5
     along_sigma_m: float = 3000.0
     along_L_px: float = 600.0
     limb_gate: float = 3.0
+    cross_check_ratio: float = 3.0
     filter_state: bool = False
 
     def __post_init__(self):
@@ -460,7 +473,9 @@ class EdgeHeightOptions(_Checks):
             self._bad("estimate", "true or false")
         if not isinstance(self.filter_state, bool):
             self._bad("filter_state", "true or false")
-        self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate"))
+        self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate", "cross_check_ratio"))
+        if not (math.isnan(self.start_m) or 0.0 <= self.start_m < 200e3):
+            self._bad("start_m", "NaN (atmosphere_m) or 0 <= h < 200 km")
         if not self.along_L_px >= 1.0:
             self._bad("along_L_px", ">= 1 px")
         if not 0.0 < self.constrained_ratio <= 1.0:
@@ -488,7 +503,9 @@ class TargetConfig(_Checks):
         a few degrees.
     atmosphere_m : effective atmosphere thickness d [m] (003 eq. (5)), 0..200 km; Earth only.
         The apparent horizon is where the limb's brightness crosses the threshold, at a tangent
-        height d that varies with exposure and illumination (003 §4, 004 §3.4.3).
+        height d (of the edge pixels' straight lines of sight above the ellipsoid) that varies
+        with exposure and illumination (003 §4, 004 §3.4.3): the mean of the edge height's prior
+        (`EdgeHeightOptions`; the fixed height when it is not estimated).
     atmosphere_sigma_m : its 1-sigma uncertainty [m]: the sigma of the edge height's prior
         (`EdgeHeightOptions`); Earth only.
     edge_offset_px : distance [px] from the centres of the followed (white) border pixels to the
@@ -532,8 +549,9 @@ class TargetConfig(_Checks):
 class VisionConfig:
     """Front-end configuration: one `TargetConfig` per target, the Earth-radius fallback.
 
-    The defaults are those of the ATEK-like cameras: Earth with the threshold edge at d = 45 km
-    measured on rendered frames and the fraction-of-peak limb edge; the Sun saturated (threshold
+    The defaults are those of the ATEK-like cameras: Earth with the threshold edge's height prior
+    15 +- 20 km (real orbital photographs 0-10 km, the renderer's 45 km; candidates scored at
+    45 km) and the fraction-of-peak limb edge; the Sun saturated (threshold
     250, 003 §5) and searched on lines spaced for 0.5 deg (`resolve_search_lines`); the Moon off
     (rarely in view in the ATEK flight; enable per scenario or ``--moon``), processed phase-aware
     (`PhaseOptions`, `vision.moon`) with the pixel noise of its threshold edge (R = 0.1 px^2,
@@ -545,10 +563,10 @@ class VisionConfig:
 
     earth: TargetConfig = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, atmosphere_m=45e3, atmosphere_sigma_m=20e3,
+        min_pixels=100, atmosphere_m=15e3, atmosphere_sigma_m=20e3,
         scoring=ScoringOptions(score_rays=100),
         ransac=RansacOptions(threshold_px=4.0, max_hypotheses=100, min_inlier_fraction=0.5),
-        fit=FitOptions(R_px2=0.2))
+        fit=FitOptions(R_px2=0.2), edge=EdgeHeightOptions(start_m=45e3))
     sun: TargetConfig = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=250.0), SearchConfig(alpha_min_deg=0.5), 12),
         min_pixels=12, max_residual=1e-6, alpha_max_deg=4.0,

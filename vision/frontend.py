@@ -14,8 +14,9 @@ Pipeline per target (`process_frame`; options: `vision.config`)
    directly; when more than ``scoring.direct_outlier_fraction`` of them miss the cone by
    ``ransac.threshold_px`` (converted per ray to an angle, `vision.ransac.pixel_angle`), the
    pre-verified RANSAC cone fit (`vision.ransac.ransac_cone`, 000 §2.3) runs instead. Earth:
-   known alpha from the height (prior) and the effective atmosphere thickness d (003 eq. (5)),
-   in the fit frame of the limb model (`vision.oblate`). Sun/Moon: alpha estimated (003 §5).
+   known alpha from the height (prior) and the effective atmosphere thickness d (003 eq. (5);
+   ``edge.start_m`` when the edge height is estimated, `model_height_m`), in the fit frame of
+   the limb model (`vision.oblate`). Sun/Moon: alpha estimated (003 §5).
 3. Acceptance per candidate, each failure giving a reason: enough pixels and inliers, residual
    (mean squared angular distance of the inliers from the cone, `vision.nadir.angle_residual`)
    below ``max_residual`` (003 §7.3, re-derived in `vision.config`), Sun/Moon apparent radius
@@ -148,10 +149,14 @@ def _refit_winner(out: TargetResult, win, cand, camera, tc: TargetConfig, model)
 
 def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min_inliers: int):
     """The threshold edge's inliers re-selected on the cone of the joint direction and edge-height
-    fit (`vision.edge_height.fit_edge_reselect`, prior N(atmosphere_m, atmosphere_sigma_m^2)): the
-    fixed-height cone keeps only part of a long arc when the edge sits elsewhere. (fit, inliers);
+    fit (`vision.edge_height.fit_edge_reselect`) with the prior centred on the height the
+    candidates were scored at (`model_height_m`, sigma ``atmosphere_sigma_m``): the fixed-height
+    cone keeps only part of a long arc when the edge sits elsewhere. This selection feeds the limb
+    edge (`limb_refit`), whose height has its own prior; the threshold edge's final fit
+    (`_earth_covariance`) takes the prior N(atmosphere_m, atmosphere_sigma_m^2). (fit, inliers);
     the fit's direction and alpha those of the joint fit."""
-    ef, inl2 = fit_edge_reselect(model, tc.atmosphere_m, H, J, inl, fit.e_c, tc.atmosphere_m,
+    d0 = model_height_m(tc)
+    ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, d0,
                                  tc.atmosphere_sigma_m, tc.fit.R_px2, max(1.0, tc.fit.L_px / step), thr,
                                  min_inliers, tc.edge.constrained_ratio, along_sigma_m=tc.edge.along_sigma_m,
                                  along_L=max(1.0, tc.edge.along_L_px / step))
@@ -162,7 +167,7 @@ def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min
 
 
 def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: float, sig_p: float, d0: float,
-                      thr: float, along_m: float):
+                      thr: float, along_m: float, prior_m: float):
     """Earth: (e_c, P_c, cone alpha, fit alpha, edge, inliers) of the final fit at edge height
     ``d0`` [m] (the height ``model`` is built at). With ``edge.estimate`` the height is fitted
     with the direction, the prior N(d0, sig_p^2) as a pseudo-measurement, the inliers re-selected
@@ -173,11 +178,12 @@ def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: fl
     [m], sigma [m], (3,) covariance with e_c [rad m], from the arc, the arc's own height [m] and its
     sigma [m], and with ``edge.filter_state`` the sensitivity ``d e_c / d h_e = -g`` (else None),
     P_c then without the height term); ``along_m``: the edge's height variation along the limb
-    [m]. The cone alpha is the median angle of the inlier rays about e_c (the visible horizon's
-    cone, for its conic type)."""
+    [m]; ``prior_m``: the prior's mean [m] (``d0`` when the height is not estimated). The cone
+    alpha is the median angle of the inlier rays about e_c (the visible horizon's cone, for its
+    conic type)."""
     state = tc.edge.filter_state
     if tc.edge.estimate and sig_p > 0 and not state:
-        ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, d0, sig_p, tc.fit.R_px2, L_eff, thr,
+        ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, prior_m, sig_p, tc.fit.R_px2, L_eff, thr,
                                      max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio,
                                      along_sigma_m=along_m, along_L=L_eff * tc.edge.along_L_px / tc.fit.L_px)
         if ef is not None:
@@ -222,15 +228,48 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
             model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
-                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m)
-            if _limb_consistent(res[4], sigma_l, tc):
+                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m, tc.limb.height_m)
+            res_t = None
+            if _limb_consistent(res[4], sigma_l, tc) and _limb_checked(res[4], max(sigma_l, tc.edge.limb_prior_sigma_m), tc):
+                res_t = _threshold_covariance(model, fit, w, tc, L_eff, pa_med)
+            if _limb_consistent(res[4], sigma_l, tc) and _edges_agree(res, res_t, tc):
                 out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr[7:]
                 out.limb_edge = True
                 return _earth_out(out, res, uv_l, fit_l)
             out.limb_rejected_m = float(res[4][4])
-    res = _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, tc.atmosphere_m,
-                            tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m)
-    return _earth_out(out, res, uv, fit)
+            if res_t is not None:
+                return _earth_out(out, res_t, uv, fit)
+    return _earth_out(out, _threshold_covariance(model, fit, w, tc, L_eff, pa_med), uv, fit)
+
+
+def _threshold_covariance(model, fit, w, tc: TargetConfig, L_eff: float, pa_med: float):
+    """`_earth_covariance` of the threshold edge (the refit ``w``), prior N(atmosphere_m, atmosphere_sigma_m^2)."""
+    _, rays_c, J, _, H, _, inl, _ = w
+    return _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
+                             tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m)
+
+
+def _limb_checked(ef, sigma_p: float, tc: TargetConfig) -> bool:
+    """The arc cannot check the limb model's height (`_limb_consistent` is inconclusive): its own
+    height sigma exceeds ``edge.cross_check_ratio`` times the limb prior's ``sigma_p`` [m] (a
+    narrow field of view), so the limb edge is checked against the threshold edge instead
+    (`_edges_agree`). An arc that was not fitted for its height (``edge.estimate`` false: sigma
+    inf) is not checked."""
+    s = ef[5]
+    return tc.edge.limb_gate > 0 and tc.edge.cross_check_ratio > 0 and tc.edge.cross_check_ratio * sigma_p < s < math.inf
+
+
+def _edges_agree(res_l, res_t, tc: TargetConfig) -> bool:
+    """The limb edge's nadir and the threshold edge's (``res_*`` from `_earth_covariance`; None:
+    not compared) within ``edge.limb_gate`` sigmas of their difference, covariance the sum of
+    theirs (independent height priors: the limb model's and the threshold edge's). The limb edge's
+    per-pixel heights (flank, calibration) come from a limb profile model that an unseen
+    atmosphere or camera may not follow; where the arc cannot check them, the threshold edge can."""
+    if res_t is None:
+        return True
+    d = res_l[0] - res_t[0]
+    m2 = float(d @ np.linalg.pinv(res_l[1] + res_t[1], rcond=1e-10, hermitian=True) @ d)
+    return m2 <= tc.edge.limb_gate**2
 
 
 def _earth_out(out: TargetResult, res, uv, fit):
@@ -309,11 +348,21 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     return out
 
 
+def model_height_m(tc: TargetConfig) -> float:
+    """Edge height [m] the Earth's limb model is built at: the candidates are scored with its
+    cone and the joint fit of the height starts there (``edge.start_m`` when the height is
+    estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is, as with
+    ``edge.filter_state``)."""
+    if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m) and not tc.edge.filter_state:
+        return tc.edge.start_m
+    return tc.atmosphere_m
+
+
 def _earth_model(config: VisionConfig, prior: FramePrior | None, height_m: float | None):
-    """The Earth's limb model (`vision.oblate`, d = ``earth.atmosphere_m``): the ellipsoid with a
+    """The Earth's limb model (`vision.oblate`, d = `model_height_m`): the ellipsoid with a
     prior giving x_e and R_ec, else the sphere at ``height_m`` of radius ``sphere_radius_m``,
     the Gaussian radius at ``prior.lat``, or ``nav.earth.R_MEAN`` (003 §2.8)."""
-    d = config.earth.atmosphere_m
+    d = model_height_m(config.earth)
     if prior is not None and prior.x_e is not None and prior.R_ec is not None:
         return ellipsoid_model(prior.x_e, prior.R_ec, d)
     if height_m is None:

@@ -26,6 +26,7 @@ from nav import ephemeris
 from scenarios.sim import render
 from scenarios.flightlog.jpeg import decode_frame
 from scenarios.config.vision import load_vision_config
+from scenarios.study.edge_mismatch import NOMINAL_EDGE_M
 from vision import mask as vmask
 from vision.camera import project
 from vision.frontend import FramePrior, process_frame
@@ -121,7 +122,7 @@ def _stats(e) -> dict:
 
 def _evaluate(look, times, fl, recs, cfg, mask):
     cam = fl.cameras[0].camera
-    d = cfg.earth.atmosphere_m
+    d = NOMINAL_EDGE_M      # the rendered threshold edge (the visible fraction of the limb)
     out = dict(earth_err=[], earth_sig=[], earth_sun_in_view=[], sun_err=[], sun_sig=[], false_earth=0, no_horizon=0, false_sun=0,
                no_sun=0, miss=0, horizon=0, base_err=[], frames=0)
     rng = np.random.default_rng(0)
