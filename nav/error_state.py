@@ -4,6 +4,7 @@ Order (groups switched ``"off"`` in the tuning are left out)::
 
     dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w | psi_c[k] for each camera k
                     | dt_c[k] for each camera k | zeta[k, target] for each camera k and target
+                    | h_e[k] for each camera k
 
 * ``dx_e, dv_e`` true minus estimated position and velocity in e [m, m/s];
 * ``psi`` attitude error in e, from the estimated to the true attitude (docs/conventions.md "Rotations");
@@ -13,9 +14,12 @@ Order (groups switched ``"off"`` in the tuning are left out)::
 * ``psi_c`` camera misalignment in b, ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50));
 * ``dt_c`` camera clock offset error [s], true minus estimated offset (one state per camera,
   :mod:`nav.clock_offset`; a constant: identity transition);
-* ``zeta`` Gauss-Markov vector errors of 003 eqs. (41)-(45), in the camera frame.
+* ``zeta`` Gauss-Markov vector errors of 003 eqs. (41)-(45), in the camera frame;
+* ``h_e`` the effective height of the camera's Earth edge [m] (``d`` of 003 eq. (5)), true minus
+  estimated: a constant, or a first-order Gauss-Markov process of correlation time
+  ``Tuning.edge_height_tau_s`` (:mod:`nav.updates` ``CameraVectors`` gives its column).
 
-Every group has 3 components except ``dt_c`` (1).
+Every group has 3 components except ``dt_c`` and ``h_e`` (1).
 
 The navigation block (dx, dv, psi) is always estimated; every other group is estimated or
 considered (Schmidt-Kalman) as the tuning says.
@@ -90,6 +94,9 @@ class StateLayout:
     def clock_name(self, camera: int) -> str:
         return f"dt_c_{camera}"
 
+    def edge_name(self, camera: int) -> str:
+        return f"h_e_{camera}"
+
 
 def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
     """State layout for ``n_cameras`` cameras (0 allowed: GPS/INS only)."""
@@ -121,6 +128,9 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
             for k in range(n_cameras):
                 for t in tuning.targets:
                     add(f"zeta_{t}_{k}", tuning.vector_gm_mode == "E", tuning.gm_default_sigma)
+        if tuning.edge_height.on:
+            for k in range(n_cameras):
+                add(f"h_e_{k}", tuning.edge_height.estimated, tuning.edge_height.sigma, size=1)
     return StateLayout(tuple(groups), n_cameras, tuple(tuning.targets))
 
 
@@ -134,13 +144,14 @@ def gravity_gradient(x_e) -> np.ndarray:
     return GM / r ** 3 * (3.0 * np.outer(u, u) - np.eye(3)) + np.diag([OMEGA_E ** 2, OMEGA_E ** 2, 0.0])
 
 
-def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float) -> np.ndarray:
+def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge: float = 0.0) -> np.ndarray:
     """Continuous-time error dynamics F (n, n) of the e-frame mechanisation (:mod:`nav.ins`)::
 
         d(dx)/dt  = dv
         d(dv)/dt  = G dx - 2 [w_ie x] dv - [(R_eb f_b) x] psi - R_eb delta_f
         d(psi)/dt = -[w_ie x] psi - R_eb delta_w
         d(zeta)/dt = -zeta / T_c          (003 §6.3)
+        d(h_e)/dt  = -h_e / tau_edge      (a constant when tau_edge is 0)
 
     with ``delta_f = b_f + diag(f_b) s_f + [f_b x] m_f`` (and the same for the gyro,
     :mod:`nav.imu_errors`); constants (biases, scale factors, misalignments, psi_c) have zero rows.
@@ -164,6 +175,8 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float) -> np.nd
     for g in layout.groups:
         if g.name.startswith("zeta_"):
             F[g.slice, g.slice] = -np.eye(3) / tc
+        elif g.name.startswith("h_e_") and tau_edge > 0:
+            F[g.slice, g.slice] = -1.0 / tau_edge
     return F
 
 
@@ -177,7 +190,7 @@ def discrete_transition(layout: StateLayout, F: np.ndarray, dt: float) -> np.nda
     m = N_NAV
     Phi[:m] += Fd[:m] + 0.5 * (Fd[:m] @ Fd)
     for g in layout.groups:
-        if g.name.startswith("zeta_"):
+        if g.name.startswith(("zeta_", "h_e_")):
             d = np.exp(np.diag(Fd[g.slice, g.slice]))
             Phi[g.slice, g.slice] = np.diag(d)
     return Phi
@@ -259,10 +272,11 @@ class TransitionBuilder:
     """Builds :class:`BlockTransition` for a layout with the compiled :func:`nav_transition` (the
     filter's form of :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
 
-    def __init__(self, layout: StateLayout, tc: float):
+    def __init__(self, layout: StateLayout, tc: float, tau_edge: float = 0.0):
         self.n = layout.n
         self.layout = layout
-        self.tc = tc
+        self.tc, self.tau_edge = tc, tau_edge
+        self.edge = edge_gm_indices(layout, tau_edge)
         self.cols = np.array([layout[nm].start if layout.has(nm) else -1 for nm in IMU_GROUPS], dtype=np.int64)
         self.zeta = np.zeros(self.n, bool)
         for g in layout.groups:
@@ -275,7 +289,17 @@ class TransitionBuilder:
                             np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM)
         d = np.ones(self.n)
         d[self.zeta] = np.exp(-dt / self.tc)
+        if self.edge.size:
+            d[self.edge] = np.exp(-dt / self.tau_edge)
         return BlockTransition(A, d)
+
+
+def edge_gm_indices(layout: StateLayout, tau_edge: float) -> np.ndarray:
+    """State indices of the Gauss-Markov edge heights ``h_e`` (empty when they are constants,
+    ``tau_edge`` 0, or not in the layout)."""
+    if not tau_edge > 0:
+        return np.zeros(0, np.int64)
+    return np.array([g.slice.start for g in layout.groups if g.name.startswith("h_e_")], np.int64)
 
 
 @nb.njit(cache=True)

@@ -9,7 +9,8 @@ are packed so that the kernels take a few arrays instead of one argument per qua
 * ``nav`` (10,): x_e, v_e, q_eb (``x``, ``v``, ``q`` are views of it);
 * ``fed`` (flat): every fed-back estimate, viewed as ``cal_arr`` (6, 3) (the
   :class:`nav.imu_errors.ImuCalibration` fields, in ``CAL_FIELDS`` order), ``R_bc`` (cameras, 3, 3),
-  ``zeta`` (groups, 3) and ``clk_hat`` (cameras,);
+  ``zeta`` (groups, 3), ``clk_hat`` (cameras,) and ``edge_hat`` (cameras,), the Earth edge
+  heights [m];
 * ``fb`` (k, 3) int64: the feedback table, one row ``(operation, offset in fed, first state index)``
   per estimated group (:func:`feedback_table`);
 * ``cal_m`` (2, 4, 3): the calibration the INS applies, ``A (x - b)``: rows 0..2 of ``[0]`` are
@@ -29,7 +30,7 @@ import numpy as np
 from nav import ins
 from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
 from nav.earth import GM, OMEGA_E
-from nav.error_state import IMU_GROUPS, StateLayout, nav_transition, propagate_covariance
+from nav.error_state import IMU_GROUPS, StateLayout, edge_gm_indices, nav_transition, propagate_covariance
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.tuning import Tuning
@@ -43,10 +44,11 @@ def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndar
     """(k, 3) int64 rows ``(operation, offset in fed, first state index)`` of every estimated group
     beyond dx, dv, psi: the IMU error groups add into their calibration field, a camera
     misalignment rotates its mounting ``R_bc <- exp([psi_c x]) R_bc`` (003 eq. (50)), a zeta group
-    adds into its estimate and a clock offset into the camera's offset (layout of ``fed`` as in
-    the module docstring)."""
+    adds into its estimate, a clock offset into the camera's offset and an edge height into the
+    camera's height (layout of ``fed`` as in the module docstring)."""
     o_cam, o_zeta = 18, 18 + 9 * n_cam
     o_clk = o_zeta + 3 * len(zeta_names)
+    o_edge = o_clk + n_cam
     rows = []
     for g in layout.groups:
         if not g.estimated or g.name in ("dx", "dv", "psi"):
@@ -59,6 +61,8 @@ def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndar
             rows.append((FB_ADD3, o_zeta + 3 * zeta_names.index(g.name), g.slice.start))
         elif g.name.startswith("dt_c_"):
             rows.append((FB_ADD1, o_clk + int(g.name[5:]), g.slice.start))
+        elif g.name.startswith("h_e_"):
+            rows.append((FB_ADD1, o_edge + int(g.name[4:]), g.slice.start))
     return np.array(rows, dtype=np.int64).reshape(-1, 3)
 
 
@@ -73,10 +77,12 @@ class FilterState:
     P : (n, n) initial covariance (owned: updated in place).
     R_bc : (cameras, 3, 3) nominal camera mountings.
     clk0 : (cameras,) camera clock offsets the stamps were corrected by [s].
+    edge0 : (cameras,) initial Earth edge heights [m] (the mean of their Gauss-Markov process);
+        default 0.
     """
 
     def __init__(self, layout: StateLayout, tuning: Tuning, x_e, v_e, q_eb, P: np.ndarray, R_bc: np.ndarray,
-                 clk0: np.ndarray):
+                 clk0: np.ndarray, edge0=None):
         self.layout, self.tuning, self.n = layout, tuning, layout.n
         self.est_mask = layout.estimated_mask
         self.P = P
@@ -88,13 +94,20 @@ class FilterState:
         n_cam = R_bc.shape[0]
         zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
         nz = len(zeta_groups)
-        self.fed = np.zeros(18 + 9 * n_cam + 3 * nz + n_cam)
+        self.fed = np.zeros(18 + 9 * n_cam + 3 * nz + 2 * n_cam)
         self.cal_arr = self.fed[:18].reshape(6, 3)
         self.R_bc = self.fed[18:18 + 9 * n_cam].reshape(n_cam, 3, 3)
         self.R_bc[:] = R_bc
         self.zeta = self.fed[18 + 9 * n_cam:18 + 9 * n_cam + 3 * nz].reshape(nz, 3)
-        self.clk_hat = self.fed[18 + 9 * n_cam + 3 * nz:]
+        o_clk = 18 + 9 * n_cam + 3 * nz
+        self.clk_hat = self.fed[o_clk:o_clk + n_cam]
         self.clk0 = clk0
+        self.edge_hat = self.fed[o_clk + n_cam:]
+        self.edge0 = np.zeros(n_cam) if edge0 is None else np.asarray(edge0, float).reshape(n_cam)
+        self.edge_hat[:] = self.edge0
+        self.edge_gm = edge_gm_indices(layout, tuning.edge_height_tau_s)
+        self.edge_gm_cams = np.array([int(g.name[4:]) for g in layout.groups if g.name.startswith("h_e_")]
+                                     if self.edge_gm.size else [], np.int64)
         self.calibration = ImuCalibration(**{nm: self.cal_arr[i] for i, nm in enumerate(CAL_FIELDS)})
         self.zeta_index = {g.name: i for i, g in enumerate(zeta_groups)}
         self.P_c = np.tile(np.eye(3) * tuning.gm_default_sigma ** 2, (nz, 1, 1))
@@ -123,6 +136,22 @@ class FilterState:
         """The INS and the covariance from IMU sample k to k_end (:func:`propagate_block`)."""
         propagate_block(self.nav, self.cal_m, ts, fw, traj, k, k_end, avg, self.model, self.gm_idx, self.P_c,
                         self.zeta, self.P, A_out, d_out)
+        if self.edge_gm.size:
+            self._edge_decay(ts[k_end] - ts[k], d_out)
+
+    def _edge_decay(self, dt: float, d_out) -> None:
+        """The Gauss-Markov edge heights over ``dt`` [s]: their rows of Phi are ``phi e_i`` (nothing
+        else enters them), so ``Phi P Phi^T`` is the block's propagation with those rows and
+        columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``; the estimates
+        relax towards their initial values."""
+        phi = np.exp(-dt / self.tuning.edge_height_tau_s)
+        i = self.edge_gm
+        self.P[i, :] *= phi
+        self.P[:, i] *= phi
+        self.P[i, i] += (1.0 - phi * phi) * self.tuning.edge_height.sigma ** 2
+        d_out[i] = phi
+        cams = self.edge_gm_cams
+        self.edge_hat[cams] = self.edge0[cams] + phi * (self.edge_hat[cams] - self.edge0[cams])
 
     def calibration_changed(self) -> None:
         """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into

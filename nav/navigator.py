@@ -101,12 +101,20 @@ class GpsData:
 @dataclass
 class VectorData:
     """Camera direction vectors: camera index, target ("hor", "sun", "moon"), unit vector e_c in
-    the camera frame and its covariance P_c (003 eq. (33))."""
+    the camera frame and its covariance P_c (003 eq. (33)).
+
+    Optionally, for horizon vectors fitted with a fixed Earth edge height: ``edge_ref_m`` (N,) that
+    height [m] and ``dedge_c`` (N, 3) the vector's sensitivity to the true edge height, ``d e_c /
+    d h_e`` [1/m] (NaN where unknown): the vector measures ``e_c(h_e) = e_c + dedge_c (h_e -
+    edge_ref_m)``, the filter's ``h_e`` state (``Tuning.edge_height``) takes it from there, and
+    ``P_c`` must then hold the pixel noise only (not the height's uncertainty)."""
     t_ns: np.ndarray
     camera: np.ndarray
     target: np.ndarray
     e_c: np.ndarray
     P_c: np.ndarray
+    dedge_c: np.ndarray | None = None
+    edge_ref_m: np.ndarray | None = None
 
 
 @dataclass
@@ -283,7 +291,22 @@ def _corrected_stamps(vectors: VectorData | None, clk0: np.ndarray) -> VectorDat
     shift = np.zeros(cam_idx.size, dtype=np.int64)
     shift[known] = np.round(clk0[cam_idx[known].astype(int)] * NS).astype(np.int64)
     return VectorData(np.asarray(vectors.t_ns, dtype=np.int64) - shift, vectors.camera, vectors.target,
-                      vectors.e_c, vectors.P_c)
+                      vectors.e_c, vectors.P_c, vectors.dedge_c, vectors.edge_ref_m)
+
+
+def initial_edge_heights(vectors: VectorData | None, n_cam: int) -> np.ndarray:
+    """Per camera, the edge height [m] of its first horizon vector with a sensitivity
+    (``VectorData.edge_ref_m``): the start of the filter's ``h_e`` (0 where there is none)."""
+    out = np.zeros(n_cam)
+    if vectors is None or vectors.dedge_c is None or vectors.edge_ref_m is None:
+        return out
+    cam, ref = np.asarray(vectors.camera), np.asarray(vectors.edge_ref_m, float)
+    ok = np.all(np.isfinite(np.asarray(vectors.dedge_c, float)), axis=1) & np.isfinite(ref)
+    for c in range(n_cam):
+        j = np.flatnonzero(ok & (cam == c))
+        if j.size:
+            out[c] = ref[j[np.argmin(np.asarray(vectors.t_ns)[j])]]
+    return out
 
 
 class _Recorder:
@@ -413,7 +436,8 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
     R_bc_nom = np.array([np.asarray(R, float) for R in R_bc], float).reshape(len(R_bc), 3, 3)
     layout = build_layout(tuning, len(R_bc))
     P, clk0 = _initial_covariance(layout, init, len(R_bc), clock_offset_s, clock_offset_sigma_s)
-    st = FilterState(layout, tuning, init.x_e, init.v_e, init.q_eb, P, R_bc_nom, clk0)
+    st = FilterState(layout, tuning, init.x_e, init.v_e, init.q_eb, P, R_bc_nom, clk0,
+                     initial_edge_heights(vectors, len(R_bc)))
     vectors = _corrected_stamps(vectors, clk0)
     sources = []
     if gps is not None:

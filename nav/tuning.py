@@ -8,7 +8,8 @@ default, an unknown table or key is an error naming it::
     [imu]       accel_white_noise_mg_rthz, accel_white_noise_extra_mg_rthz,
                 gyro_white_noise_deg_rth, gyro_white_noise_extra_deg_rth,
                 gyro_range_deg_s, accel_range_g, max_gap_s
-    [states.<group>]  mode = "E" | "C" | "off", sigma_<unit>  (groups and units: ``_GROUPS``)
+    [states.<group>]  mode = "E" | "C" | "off", sigma_<unit>  (groups and units: ``_GROUPS``;
+                [states.edge_height] also takes correlation_time_s, 0 for a constant)
     [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg,
                 white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon)
     [gps]       noise_scale
@@ -74,6 +75,15 @@ class Tuning:
         Time offset of each camera's clock against the IMU time base [s] (003 §7.3), one
         constant state per camera (:mod:`nav.clock_offset` gives the initial value and sigma).
         Off by default (not in table 3); TOML ``[states.camera_clock_offset]`` with ``sigma_ms``.
+    edge_height : StateGroupTuning
+        Effective height of each camera's Earth edge above the ellipsoid [m] (003 eq. (5), ``d``;
+        :mod:`vision.edge_height`): one state ``h_e`` per camera, entering the horizon vectors that
+        carry their sensitivity (``VectorData.dedge_c``). Its initial value is the height the
+        vectors were fitted at (``VectorData.edge_ref_m``), ``sigma`` its initial 1-sigma. Off by
+        default; TOML ``[states.edge_height]`` with ``sigma_km`` and ``correlation_time_s``.
+    edge_height_tau_s : float
+        Correlation time of ``h_e`` as a first-order Gauss-Markov process about its initial value
+        with the stationary sigma ``edge_height.sigma`` [s]; 0: a constant.
     vector_white : float
         White noise (1 sigma, per axis, unit-vector units) added to eq. (49) as Q_tuning.
     vector_gm_mode : str
@@ -139,6 +149,8 @@ class Tuning:
     gyro_misalignment: StateGroupTuning = StateGroupTuning("C", 2e-3)
     camera_misalignment: StateGroupTuning = StateGroupTuning("E", math.radians(1.0))
     camera_clock_offset: StateGroupTuning = StateGroupTuning("off", 0.05)
+    edge_height: StateGroupTuning = StateGroupTuning("off", 20e3)
+    edge_height_tau_s: float = 0.0
     vector_white: float = 0.005
     vector_gm_mode: str = "C"
     correlation_time_s: float = 20.0
@@ -214,6 +226,7 @@ _GROUPS = {  # key: (unit key, factor to SI)
     "gyro_misalignment": ("sigma_mrad", 1e-3),
     "camera_misalignment": ("sigma_deg", math.radians(1.0)),
     "camera_clock_offset": ("sigma_ms", 1e-3),
+    "edge_height": ("sigma_km", 1e3),
 }
 
 
@@ -314,6 +327,15 @@ def _recovery_choices(rec: dict, kw: dict) -> None:
         kw["recovery_gated_fixes"] = _count("recovery", "gated_fixes", rec["gated_fixes"])
 
 
+def _edge_height_tau(states: dict, kw: dict) -> dict:
+    """``[states.edge_height] correlation_time_s`` into ``kw``; the states without that key."""
+    g = states.get("edge_height")
+    if not isinstance(g, dict) or "correlation_time_s" not in g:
+        return states
+    kw["edge_height_tau_s"] = _positive(g["correlation_time_s"], "[states.edge_height] correlation_time_s")
+    return {**states, "edge_height": {k: v for k, v in g.items() if k != "correlation_time_s"}}
+
+
 def tuning_from_dict(d: dict) -> Tuning:
     """Build a :class:`Tuning` from a dict of overrides shaped like a tuning TOML file (tables
     ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``, ``[recovery]``, ``[gps]``; units in the key
@@ -346,6 +368,7 @@ def tuning_from_dict(d: dict) -> Tuning:
     unknown = set(states) - set(_GROUPS)
     if unknown:
         raise ValueError(f"tuning [states]: unknown groups {sorted(unknown)}; expected {sorted(_GROUPS)}")
+    states = _edge_height_tau(states, kw)
     for key, (unit_key, scale) in _GROUPS.items():
         kw[key] = _group(states, key, unit_key, scale, getattr(base, key))
     return replace(base, **kw)

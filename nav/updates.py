@@ -336,6 +336,10 @@ class CameraVectors:
         self.white2 = {t: tuning.vector_white_for(t) ** 2 for t in set(self.target)}
         self.pc_scale2 = {t: tuning.vector_cov_scale_for(t) ** 2 for t in set(self.target)}
         self.problems = vector_problems(vec)
+        dedge, ref = getattr(vec, "dedge_c", None), getattr(vec, "edge_ref_m", None)
+        self.edge = None
+        if dedge is not None and ref is not None and any(layout.has(layout.edge_name(c)) for c in range(n_cam)):
+            self.edge = (np.asarray(dedge, float).reshape(-1, 3), np.asarray(ref, float).reshape(-1))
         self.body_pos = {}
         tg = np.asarray(vec.target)
         for name, fn in (("sun", sun_position_e), ("moon", moon_position_e)):
@@ -388,6 +392,9 @@ class CameraVectors:
         pred = predict_vector(u_e, R_m, R_bc)
         if has_z:
             pred = pred + st.zeta[st.zeta_index[zname]]
+        edge = self._edge_column(j, cam, st) if self.edge is not None else None
+        if edge is not None:
+            pred = pred + edge[1]
         T = tangent_basis(pred)
         H_dx, H_psi, H_psic = vector_jacobians(target, x_m, u_e, R_m, R_bc, tpos)
         H3 = np.zeros((3, n))
@@ -398,6 +405,8 @@ class CameraVectors:
         if lay.has(lay.clock_name(cam)):
             # the frame was taken at stamp - offset_true = t_est - dt_c: e_true = e(t_est) - de_c/dt dt_c
             H3[:, lay[lay.clock_name(cam)].start] = -vector_rate(target, x_m, v_m, u_e, R_m, R_bc, w_eb, tpos)
+        if edge is not None:
+            H3[:, edge[0]] = self.edge[0][j]
         R3 = self.white2[target] * np.eye(3)
         if has_z:
             H3[:, lay[zname]] = np.eye(3)
@@ -409,6 +418,15 @@ class CameraVectors:
         stack.s[o:o + 2] = T.T @ (e_c - pred)
         stack.R[o:o + 2, o:o + 2] = T.T @ R3 @ T
         stack.add(t_m, target, cam, o, 2, None)
+
+    def _edge_column(self, j: int, cam: int, st):
+        """``(state index of h_e, dedge_c (h_hat - edge_ref_m))`` for vector j, or None when the
+        layout has no ``h_e`` for its camera or the vector no finite sensitivity."""
+        name = self.layout.edge_name(cam)
+        g, ref = self.edge[0][j], self.edge[1][j]
+        if not self.layout.has(name) or not (np.all(np.isfinite(g)) and np.isfinite(ref)):
+            return None
+        return self.layout[name].start, g * (st.edge_hat[cam] - ref)
 
     def _restart_zeta(self, st, zname: str, t_m: int, P_c) -> None:
         """Quasi-stationary P_c of 003 eq. (44): a first (or stale, > 3 T_c) sighting restarts the

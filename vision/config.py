@@ -449,6 +449,13 @@ class EdgeHeightOptions(_Checks):
         below 3 x 20 km, some not below 20 km) the gate above cannot tell, and the limb edge is kept only when its nadir
         agrees with the threshold edge's within ``limb_gate`` sigmas of their difference
         (covariance the sum of theirs); else the threshold edge is used. 0: no cross-check.
+    filter_state : the navigation filter estimates the edge height (its ``h_e`` state, one per
+        camera): the direction is the fixed-height fit of the threshold edge at the prior mean
+        ``TargetConfig.atmosphere_m`` (no joint fit, no limb edge: one edge per camera, the one
+        the state describes; the candidates are scored there too, ``start_m`` unused), ``P_c``
+        holds the pixel noise only (the height's uncertainty is the filter's, not to be counted
+        twice), and ``VectorRecord.dedge_c`` carries the sensitivity ``d e_c / d h_e`` [1/m],
+        with ``edge_height_m`` the height fitted at.
     """
 
     estimate: bool = True
@@ -459,10 +466,13 @@ class EdgeHeightOptions(_Checks):
     along_L_px: float = 600.0
     limb_gate: float = 3.0
     cross_check_ratio: float = 3.0
+    filter_state: bool = False
 
     def __post_init__(self):
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
+        if not isinstance(self.filter_state, bool):
+            self._bad("filter_state", "true or false")
         self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate", "cross_check_ratio"))
         if not (math.isnan(self.start_m) or 0.0 <= self.start_m < 200e3):
             self._bad("start_m", "NaN (atmosphere_m) or 0 <= h < 200 km")

@@ -135,7 +135,7 @@ def _refit_winner(out: TargetResult, win, cand, camera, tc: TargetConfig, model)
         return None
     if model is not None:
         fit = fit_cone(H[inl], fit.alpha, fit.e_c if win.mirrored else None)
-        if tc.edge.estimate and tc.atmosphere_sigma_m > 0:
+        if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not tc.edge.filter_state:
             fit, inl = _edge_inliers(model, fit, H, J, inl, tc, step, thr, max(min_used, 20))
     else:
         fit, inl, _ = reselect_inliers(H, direction_and_radius(H[inl]), inl, thr,
@@ -176,26 +176,30 @@ def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: fl
     pixel noise plus ``sig_p^2 g g^T``, ``g = de/dd`` = de/dalpha * dalpha/dd
     (`alpha_sensitivity`, `LimbModel.alpha_rate`) mapped into the camera. ``edge`` = (height
     [m], sigma [m], (3,) covariance with e_c [rad m], from the arc, the arc's own height [m] and its
-    sigma [m]); ``along_m``: the edge's height variation along the limb [m]; ``prior_m``: the
-    prior's mean [m] (``d0`` when the height is not estimated). The cone alpha is the median angle
-    of the inlier rays about e_c (the visible horizon's cone, for its conic type)."""
-    if tc.edge.estimate and sig_p > 0:
+    sigma [m], and with ``edge.filter_state`` the sensitivity ``d e_c / d h_e = -g`` (else None),
+    P_c then without the height term); ``along_m``: the edge's height variation along the limb
+    [m]; ``prior_m``: the prior's mean [m] (``d0`` when the height is not estimated). The cone
+    alpha is the median angle of the inlier rays about e_c (the visible horizon's cone, for its
+    conic type)."""
+    state = tc.edge.filter_state
+    if tc.edge.estimate and sig_p > 0 and not state:
         ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, prior_m, sig_p, tc.fit.R_px2, L_eff, thr,
                                      max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio,
                                      along_sigma_m=along_m, along_L=L_eff * tc.edge.along_L_px / tc.fit.L_px)
         if ef is not None:
             e_c = model.to_camera(ef.e_fit)
-            edge = (ef.height_m, ef.sigma_m, ef.cov_c, ef.from_arc, ef.data_height_m, ef.data_sigma_m)
+            edge = (ef.height_m, ef.sigma_m, ef.cov_c, ef.from_arc, ef.data_height_m, ef.data_sigma_m, None)
             return e_c, ef.P_c, median(angle_residuals(rays_c[inl2], e_c, 0.0)), ef.alpha, edge, inl2
     e_c = model.to_camera(fit.e_c)
     P = direction_covariance(rays_c[inl], J[inl], e_c, tc.fit.R_px2, L_eff, method="constrained").P_c
     g = np.zeros(3)
-    if sig_p > 0:
+    if sig_p > 0 or state:
         g_fit = alpha_sensitivity(H[inl], fit.e_c, fit.alpha) * model.alpha_rate
         g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
         g /= 1e-3
-        P = P + sig_p**2 * np.outer(g, g)
-    edge = (d0, sig_p, sig_p**2 * g, False, math.nan, math.inf)
+        if not state:
+            P = P + sig_p**2 * np.outer(g, g)
+    edge = (d0, sig_p, sig_p**2 * g, False, math.nan, math.inf, -g if state else None)
     return e_c, P, median(angle_residuals(rays_c[inl], e_c, 0.0)), fit.alpha, edge, inl
 
 
@@ -217,7 +221,7 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
     uv, rays_c, J, pa, H, fit, inl, step = w
     t0 = time.perf_counter()
     pa_med = median(pa)
-    if limb is not None and tc.limb.fraction > 0:
+    if limb is not None and tc.limb.fraction > 0 and not tc.edge.filter_state:
         lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
         timings["earth.limb"] = time.perf_counter() - t0
         if lr is not None:
@@ -271,7 +275,7 @@ def _edges_agree(res_l, res_t, tc: TargetConfig) -> bool:
 def _earth_out(out: TargetResult, res, uv, fit):
     """`_earth_final`'s return value from `_earth_covariance`'s ``res``; fills ``out``."""
     e_c, P, out.cone_alpha, alpha, ef, inl = res
-    out.edge_cov_c, out.edge_from_arc = ef[2], ef[3]
+    out.edge_cov_c, out.edge_from_arc, out.edge_dedge_c = ef[2], ef[3], ef[6]
     return e_c, P, alpha, ef[:2], uv, inl, fit
 
 
@@ -337,7 +341,8 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     out.inlier_mask = inl
     out.record = VectorRecord(int(ids[0]), int(ids[1]), name, e_c, P, lam * np.eye(3), float(fit.residual),
                               int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, alpha,
-                              model.kind if model is not None else "", float(edge[0]), float(edge[1]))
+                              model.kind if model is not None else "", float(edge[0]), float(edge[1]),
+                              out.edge_dedge_c if model is not None else None)
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out
@@ -346,8 +351,9 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
 def model_height_m(tc: TargetConfig) -> float:
     """Edge height [m] the Earth's limb model is built at: the candidates are scored with its
     cone and the joint fit of the height starts there (``edge.start_m`` when the height is
-    estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is)."""
-    if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m):
+    estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is, as with
+    ``edge.filter_state``)."""
+    if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m) and not tc.edge.filter_state:
         return tc.edge.start_m
     return tc.atmosphere_m
 

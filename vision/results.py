@@ -30,6 +30,9 @@ class VectorRecord:
         (`TargetResult.limb_path`: the threshold edge, or the limb edge at the Sun overhead) and
         its 1-sigma, fitted with the direction where the arc constrains it, else the prior's
         (`vision.edge_height`); NaN for the Sun/Moon.
+    dedge_c : Earth with ``EdgeHeightOptions.filter_state``: (3,) ``d e_c / d h_e`` [1/m], how the
+        vector moves when the true edge is higher than ``edge_height_m`` (the filter's edge
+        height column); None otherwise.
     """
 
     t_ns: int
@@ -46,6 +49,7 @@ class VectorRecord:
     model: str = ""
     edge_height_m: float = math.nan
     edge_height_sigma_m: float = math.nan
+    dedge_c: np.ndarray | None = None
 
     @property
     def sigma_deg(self) -> float:
@@ -90,6 +94,7 @@ class TargetResult:
     # the mean height fitted on the profile flanks
     edge_cov_c: np.ndarray | None = None  # Earth: (3,) covariance of e_c with the edge height [rad m]
     edge_from_arc: bool = False  # Earth: the arc constrains the edge height (vision.edge_height)
+    edge_dedge_c: np.ndarray | None = None  # Earth, filter_state: (3,) d e_c / d h_e [1/m] (VectorRecord.dedge_c)
     limb_rejected_m: float = math.nan  # Earth: the limb edge's own height [m] when it disagreed with
     # the limb model (EdgeHeightOptions.limb_gate) and the threshold edge was used instead
     cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the

@@ -35,20 +35,32 @@ TRIAD_SEARCH_BATCH = 16
 
 
 def vector_data(rows) -> VectorData | None:
-    """Rows ``(t_ns, camera index, target, e_c, P_c)`` -> VectorData in (time, camera, target)
-    order; None without rows."""
+    """Rows ``(t_ns, camera index, target, e_c, P_c[, dedge_c, edge_ref_m])`` -> VectorData in
+    (time, camera, target) order (with ``dedge_c`` and ``edge_ref_m`` when a row has a
+    sensitivity, NaN for the others); None without rows."""
     if not rows:
         return None
     rows.sort(key=lambda r: (r[0], r[1], r[2]))
     c = list(zip(*rows))
-    return VectorData(np.array(c[0], np.int64), np.array(c[1], int), np.array(c[2], dtype=str),
-                      np.array(c[3], float).reshape(-1, 3), np.array(c[4], float).reshape(-1, 3, 3))
+    vd = VectorData(np.array(c[0], np.int64), np.array(c[1], int), np.array(c[2], dtype=str),
+                    np.array(c[3], float).reshape(-1, 3), np.array(c[4], float).reshape(-1, 3, 3))
+    if any(len(r) > 5 and r[5] is not None for r in rows):
+        vd.dedge_c = np.array([r[5] if len(r) > 5 and r[5] is not None else np.full(3, np.nan) for r in rows], float)
+        vd.edge_ref_m = np.array([r[6] if len(r) > 5 and r[5] is not None else np.nan for r in rows], float)
+    return vd
+
+
+def record_row(r, cam_numbers) -> tuple:
+    """A front end's VectorRecord as a row of :func:`vector_data` (its edge-height sensitivity,
+    `vision.results.VectorRecord.dedge_c`, with the height fitted at, where it has one)."""
+    row = (r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
+    dedge = getattr(r, "dedge_c", None)
+    return row if dedge is None else row + (np.asarray(dedge, float), float(r.edge_height_m))
 
 
 def frame_vectors(frames, cam_numbers) -> VectorData | None:
     """The vectors of the front end's results ``frames`` of the cameras ``cam_numbers``."""
-    return vector_data([(r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
-                        for f in frames for r in f.records if r.camera in cam_numbers])
+    return vector_data([record_row(r, cam_numbers) for f in frames for r in f.records if r.camera in cam_numbers])
 
 
 def log_vectors(inp, cam_numbers, targets, a, b) -> VectorData | None:
@@ -80,9 +92,11 @@ class ImagePlan:
 
 
 def image_plan(flight, targets, *, vision_config=None, vision_rate_hz=None, masks=None, workers=0,
-               wording: Wording = PYTHON) -> ImagePlan:
+               wording: Wording = PYTHON, edge_state: bool = False) -> ImagePlan:
     """The frames of ``flight``'s window (at most ``vision_rate_hz`` per camera) with their GPS
-    position and height priors."""
+    position and height priors. ``edge_state``: the filter estimates each camera's edge height
+    (``Tuning.edge_height`` on): the Earth vectors are the fixed-height fits with their
+    sensitivity (`vision.config.EdgeHeightOptions.filter_state`)."""
     from scenarios.config.vision import load_vision_config
     from scenarios.replay.vision_worker import FrameJob
     inp, cam_numbers, a, b = flight.inputs, flight.cam_numbers, flight.t_from, flight.t_to
@@ -96,6 +110,9 @@ def image_plan(flight, targets, *, vision_config=None, vision_rate_hz=None, mask
     rows.sort()
     # one config per camera only differs through the focal length; the worker takes one config
     cfg = _targets_only(configs[cam_numbers[0]], targets) if cam_numbers else None
+    if cfg is not None and edge_state:
+        cfg = dataclasses.replace(cfg, earth=dataclasses.replace(
+            cfg.earth, edge=dataclasses.replace(cfg.earth.edge, filter_state=True)))
     plan = ImagePlan([], cams, cfg, {k: inp.cameras[k].images for k in cam_numbers}, cam_numbers,
                      payload_masks(inp, cam_numbers, masks or {}, wording), tuple(targets), workers)
     if not rows:
@@ -133,8 +150,7 @@ def payload_masks(inp, cam_numbers, files: dict, wording: Wording = PYTHON) -> d
 
 
 def run_plan(plan: ImagePlan, jobs, frames_out=None, progress=None, on_pool_start=None, on_result=None) -> list:
-    """The vision on ``jobs``; returns the vector rows ``(t_ns, camera index, target, e_c, P_c)``
-    of the plan's targets (for :func:`vector_data`). Each finished chunk of frames goes to
+    """The vision on ``jobs``; returns the vector rows (:func:`record_row`) of the plan's targets (for :func:`vector_data`). Each finished chunk of frames goes to
     ``frames_out.extend`` and ``on_result``."""
     from scenarios.replay.vision_worker import run_vision
 
@@ -145,8 +161,7 @@ def run_plan(plan: ImagePlan, jobs, frames_out=None, progress=None, on_pool_star
             on_result(res)
     out = run_vision(jobs, plan.cams, plan.config, workers=plan.workers, progress=progress, masks=plan.masks,
                      on_result=got, images=plan.images, on_pool_start=on_pool_start)
-    return [(r.t_ns, plan.cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
-            for f in out for r in f.records if r.target in plan.targets]
+    return [record_row(r, plan.cam_numbers) for f in out for r in f.records if r.target in plan.targets]
 
 
 def triad_pass(plan: ImagePlan, imu) -> VectorData | None:

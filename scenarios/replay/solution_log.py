@@ -6,7 +6,7 @@ Topics, same message conventions as the input log:
   the covariance of the reported states (``state_names``: ``dx_x..psi_z`` in e, then every
   estimated group of the layout in its order: IMU errors ``accel_bias_x`` .., camera
   misalignments ``psi_c_<k>_x`` .., clock offsets ``dt_c_<k>``, estimated vector errors
-  ``zeta_<target>_<k>_x`` .., k the camera number; :func:`reported_groups`, :func:`state_names`); ``state`` holds the
+  ``zeta_<target>_<k>_x`` .., Earth edge heights ``h_e_<k>`` [m], k the camera number; :func:`reported_groups`, :func:`state_names`); ``state`` holds the
   estimates at the epoch (``NavResult.estimates``: the accumulated IMU-error calibration, the
   misalignment rotation vectors, ...; the fed-back navigation errors are 0). At update epochs the
   covariance is the full posterior, between them the full 9x9 block of dx, dv, psi
@@ -40,7 +40,8 @@ def log_metadata(inputs) -> dict:
 
 def reported_groups(layout) -> list:
     """State groups written with the solution: the navigation errors and every estimated group
-    (IMU errors, camera misalignments, clock offsets, estimated vector errors), in layout order."""
+    (IMU errors, camera misalignments, clock offsets, estimated vector errors, edge heights), in
+    layout order."""
     return [g for g in layout.groups if g.name in ("dx", "dv", "psi") or g.estimated]
 
 
@@ -48,7 +49,7 @@ def _camera_group_name(name: str, cam_numbers) -> str:
     """A per-camera group's name with the camera's number k instead of its index in the replay's
     camera list (``psi_c_0`` -> ``psi_c_1`` for camera 1)."""
     head, _, tail = name.rpartition("_")
-    if head.startswith(("psi_c", "dt_c", "zeta_")) and tail.isdigit():
+    if head.startswith(("psi_c", "dt_c", "zeta_", "h_e")) and tail.isdigit():
         i = int(tail)
         return f"{head}_{cam_numbers[i] if i < len(cam_numbers) else i}"
     return name

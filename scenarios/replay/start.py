@@ -8,6 +8,8 @@ and TRIAD repeated on the corrected vectors.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from nav import ins
-from nav.navigator import InitialState, VectorData
+from nav.navigator import InitialState
 from nav.rotation import quat_to_matrix
 from scenarios.errors import UserError
 from scenarios.replay.inputs import PYTHON, Wording, parse_time
@@ -280,4 +282,4 @@ def _correct_earth(vectors, imu, init, inp, R_bc):
     R_ce = np.swapaxes(R_eb @ R_bc_a, -1, -2)
     e = vectors.e_c.copy()
     e[m] = geocentric_correction(vectors.e_c[m], gps_at(inp, t), R_ce)
-    return VectorData(vectors.t_ns, vectors.camera, vectors.target, e, vectors.P_c)
+    return dataclasses.replace(vectors, e_c=e)

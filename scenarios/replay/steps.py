@@ -309,7 +309,7 @@ def check_vision(vision: str, w: Wording = PYTHON) -> None:
 
 def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int = 0, vision_config=None,
         vision_rate_hz: float | None = None, masks: dict | None = None, hooks: Hooks | None = None,
-        wording: Wording = PYTHON) -> Sight:
+        wording: Wording = PYTHON, edge_state: bool = False) -> Sight:
     """The camera vectors of ``flight``: the vision front end on its images, or the log's vectors.
 
     On images every frame of the window is processed with the attitude of the free-inertial INS
@@ -335,6 +335,10 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
         Camera number -> payload mask image file (overrides the log's).
     hooks : Hooks, optional
     wording : scenarios.replay.inputs.Wording
+    edge_state : bool
+        The filter will estimate each camera's Earth edge height (``Tuning.edge_height`` on): the
+        Earth vectors are then fixed-height fits with their sensitivity to the height
+        (`vision.config.EdgeHeightOptions.filter_state`, ``VectorData.dedge_c``).
 
     Returns
     -------
@@ -359,17 +363,19 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
     import cv2
     threads = cv2.getNumThreads()
     try:
-        return _see_images(flight, init, targets, workers, vision_config, vision_rate_hz, masks or {}, hooks, w)
+        return _see_images(flight, init, targets, workers, vision_config, vision_rate_hz, masks or {}, hooks, w,
+                           edge_state)
     finally:
         cv2.setNumThreads(threads)     # the vision runs OpenCV single-threaded
 
 
-def _see_images(flight, init, targets, workers, vision_config, vision_rate_hz, masks, hooks, w) -> Sight:
+def _see_images(flight, init, targets, workers, vision_config, vision_rate_hz, masks, hooks, w,
+                edge_state: bool = False) -> Sight:
     from scenarios.replay import sight as S
     imu, notes, frames = flight.imu, [], []
     with hooks.in_stage("init"):
         plan = S.image_plan(flight, targets, vision_config=vision_config, vision_rate_hz=vision_rate_hz, masks=masks,
-                            workers=workers, wording=w)
+                            workers=workers, wording=w, edge_state=edge_state)
         if hooks.frames is not None:
             hooks.frames(plan.jobs)
         # an attitude first (TRIAD on a sparse pass without attitude prior, or given/truth),

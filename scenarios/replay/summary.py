@@ -1,6 +1,7 @@
 """Replay summary: per measurement source the offered / used / rejected counts with reasons, the
 NIS mean against its band and the gaps, IMU gaps, recoveries and input warnings (from the
 verdict's statistics, :mod:`scenarios.replay.verdict`), final camera misalignments with 3 sigma,
+the Earth edge height of each camera with the filter's ``h_e`` state (smoothed, with its sigma),
 errors against truth when the log has it, and the verdict as the last line."""
 from __future__ import annotations
 
@@ -58,6 +59,9 @@ def summarize(rr) -> dict:
             mis[f"camera_{k}"] = {"psi_c_deg": np.degrees(res.misalignment[-1, c]).round(4).tolist(),
                                   "3sigma_deg": np.degrees(3 * res.misalignment_sigma[-1, c]).round(4).tolist()}
     out["misalignment_final"] = mis
+    edge = edge_heights(res, getattr(rr, "smooth", None), cams, getattr(rr, "vectors", None))
+    if edge:
+        out["edge_height"] = edge
     sig = np.sqrt(res.P_diag[-1])
     lay = res.layout
     out["final_3sigma"] = {"att_deg": float(np.degrees(3 * sig[lay["psi"]].max())),
@@ -73,6 +77,36 @@ def summarize(rr) -> dict:
                  "truncated": False}
         out.update({k: st.get(k, v) for k, v in empty.items()})
         out["verdict"] = verdict.to_dict()
+    return out
+
+
+def edge_heights(res, smooth, cams, vectors=None) -> dict:
+    """camera_<k> -> the Earth edge height [km] of the estimated ``h_e`` state: the smoother's
+    post-flight value and sigma at the start (a constant state: the same over the flight; None
+    without a smoother) and the forward filter's final value and sigma. Cameras none of whose
+    ``vectors`` (when given) carry a sensitivity ``dedge_c`` are left out: the state had no
+    measurement."""
+    lay, out = res.layout, {}
+    if res.estimates is None:
+        return out
+    seen = None
+    if vectors is not None:
+        g = getattr(vectors, "dedge_c", None)
+        ok = np.zeros(len(vectors.t_ns), bool) if g is None else np.all(np.isfinite(g), axis=1)
+        seen = set(np.asarray(vectors.camera)[ok].tolist())
+    for c, k in enumerate(cams):
+        name = lay.edge_name(c)
+        if not lay.has(name) or not next(g for g in lay.groups if g.name == name).estimated:
+            continue
+        if seen is not None and c not in seen:
+            continue
+        i = lay[name].start
+        d = {"forward_km": float(res.estimates[-1, i] / 1e3), "forward_sigma_km": float(np.sqrt(res.P_diag[-1, i]) / 1e3),
+             "smoothed_km": None, "smoothed_sigma_km": None}
+        if smooth is not None and smooth.estimates is not None:
+            d["smoothed_km"] = float(smooth.estimates[0, i] / 1e3)
+            d["smoothed_sigma_km"] = float(np.sqrt(smooth.P[0, i]) / 1e3)
+        out[f"camera_{k}"] = d
     return out
 
 
@@ -179,6 +213,13 @@ def format_table(s: dict) -> str:
         for k, d in s["misalignment_final"].items():
             L.append(f"{k:<10} [{', '.join(f'{x:+.3f}' for x in d['psi_c_deg'])}]   "
                      f"[{', '.join(f'{x:.3f}' for x in d['3sigma_deg'])}]")
+    if s.get("edge_height"):
+        L.append("")
+        L.append("Earth edge height [km]    smoothed   1 sigma    forward (end)   1 sigma")
+        for k, d in s["edge_height"].items():
+            sm = (f"{d['smoothed_km']:>9.2f} {d['smoothed_sigma_km']:>9.2f}" if d["smoothed_km"] is not None
+                  else f"{'-':>9} {'-':>9}")
+            L.append(f"{k:<24} {sm}    {d['forward_km']:>9.2f} {d['forward_sigma_km']:>9.2f}")
     f3 = s["final_3sigma"]
     L.append("")
     L.append(f"final 3 sigma: attitude {f3['att_deg']:.3f} deg, position {f3['pos_m']:.2f} m, velocity {f3['vel_mps']:.3f} m/s")

@@ -29,7 +29,8 @@ Columns (docs/replay.md "Exporting a solution" has the same list):
   ``gyro_bias_x`` [rad/s], ``accel_scale_x``, ``gyro_scale_x`` [-], ``accel_misalignment_x``,
   ``gyro_misalignment_x`` [rad], ``psi_c_<k>_x`` [rad] (camera k's misalignment rotation vector,
   003 eq. (50)), ``dt_c_<k>`` [s] (camera clock offset refinement), ``zeta_<target>_<k>_x``
-  [unit-vector units]): the estimate at the epoch, and ``<name>_sd`` its 1-sigma.
+  [unit-vector units], ``h_e_<k>`` [m] (camera k's Earth edge height)): the estimate at the
+  epoch, and ``<name>_sd`` its 1-sigma.
 """
 from __future__ import annotations
 

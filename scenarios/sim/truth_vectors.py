@@ -19,6 +19,18 @@ Outputs (:class:`TruthVectors`) use the log's conventions (cameras numbered from
 :meth:`TruthVectors.vector_data` gives :class:`nav.navigator.VectorData` (camera index 0-based in
 the order of the filter's mountings, targets ``"hor"``/``"sun"``).
 
+The Earth's edge height. ``alpha_earth`` is the cone of the true edge height ``h`` (the
+simulator's ``horizon_atmosphere_m``). With ``edge_ref_m`` given, the vectors are those of a
+vision front end that fits the nadir with the edge at ``edge_ref_m`` instead (a fixed-height
+constrained fit, `vision.nadir.nadir_from_horizon`): on the visible arc, the cone half-angle it
+assumes differs by ``(edge_ref_m - h) dalpha/dh``, ``dalpha/dh = 1 / (d cos alpha)`` (003 eq. (5),
+``sin alpha = (r + h) / d``, d the distance from the Earth's centre), which tilts the nadir by
+``g_fit = de/dalpha dalpha/dh`` per metre (`vision.fitting.alpha_sensitivity`: zero for a full
+circle, largest for a short arc). The measured vector is
+``e_true + g_c (h - edge_ref_m)`` plus the noise, with ``g_c = -g_fit = d e_c / d h_e`` the
+sensitivity the filter's edge-height state uses (``dedge_c``, ``edge_ref_m`` in
+:class:`nav.navigator.VectorData`); ``P_c`` is the pixel noise's (no height term).
+
 Random numbers: one generator per (camera, target) stream, ``SeedSequence(seed, spawn_key=(200 + 10 k
 + j,))`` with j = 0 for the Earth and 1 for the Sun, independent of the simulator's sensor streams.
 """
@@ -54,7 +66,9 @@ class TruthVectors:
     measured unit vectors in the camera frame; ``P_c`` (N, 3, 3) the reported covariance (003 eq.
     (33)); ``P_overbound`` (N, 3, 3) eq. (37); ``e_true`` (N, 3) the true directions; ``n_pixels``
     (N,) length of the visible arc [samples]; ``conic_type`` (N,) str. ``skipped`` counts frames
-    with the body in view but no vector, by reason.
+    with the body in view but no vector, by reason. ``dedge_c`` (N, 3) and ``edge_ref_m`` (N,):
+    the edge-height sensitivity and the height the Earth vectors were fitted at (module
+    docstring; NaN for the Sun), None when the vectors were made without ``edge_ref_m``.
     """
     t_ns: np.ndarray
     camera: np.ndarray
@@ -66,6 +80,8 @@ class TruthVectors:
     n_pixels: np.ndarray
     conic_type: np.ndarray
     skipped: dict
+    dedge_c: np.ndarray | None = None
+    edge_ref_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_ns.size)
@@ -87,7 +103,8 @@ class TruthVectors:
         m = np.isin(self.camera, ks)
         return VectorData(self.t_ns[m].astype(np.int64), np.array([index[int(k)] for k in self.camera[m]], int),
                           np.array([LOG_TO_NAV_TARGET[str(t)] for t in self.target[m]], dtype=object).astype(str),
-                          self.e_c[m], self.P_c[m])
+                          self.e_c[m], self.P_c[m], None if self.dedge_c is None else self.dedge_c[m],
+                          None if self.edge_ref_m is None else self.edge_ref_m[m])
 
 
 def _empty() -> TruthVectors:
@@ -99,7 +116,8 @@ def _empty() -> TruthVectors:
 def camera_truth_vectors(camera, k: int, t_ns, nadir_c, sun_c, alpha_earth, horizon_visible, sun_in_view,
                          sun_distance_m, *, seed: int = 0, targets=("earth", "sun"), mask=None,
                          sun_bloom: float = DEFAULT_SUN_BLOOM, gm_fraction: float = 1.0, T_c: float = T_C,
-                         min_pixels: int = 30, step_px: float = 1.0) -> TruthVectors:
+                         min_pixels: int = 30, step_px: float = 1.0, edge_ref_m: float | None = None,
+                         edge_height_m: float = 0.0, earth_distance_m=None) -> TruthVectors:
     """Vectors of one camera (k, 1-based) from its per-frame truth (see the module docstring).
 
     Parameters
@@ -115,10 +133,18 @@ def camera_truth_vectors(camera, k: int, t_ns, nadir_c, sun_c, alpha_earth, hori
     step_px : arc sampling [px] for the covariance: 1 px, the edge follower's spacing (a coarser
         sampling changes P: 2 px gave a 28 % larger sigma on an atek horizon, because the white part
         of the pixel noise, 003 eq. (34), averages over fewer samples).
+    edge_ref_m, edge_height_m, earth_distance_m : the edge height the Earth vectors are fitted at,
+        the true one ``alpha_earth`` was computed with [m], and the camera's distance from the
+        Earth's centre (N,) or scalar [m] (module docstring); ``edge_ref_m`` None: the fit at the
+        true height (no sensitivity reported).
     """
+    if edge_ref_m is not None and earth_distance_m is None:
+        raise ValueError("camera_truth_vectors: edge_ref_m needs earth_distance_m (the distance from "
+                         "the Earth's centre, for dalpha/dh)")
     t_ns = np.asarray(t_ns, np.int64)
     n = t_ns.size
     dist = np.broadcast_to(np.asarray(sun_distance_m, float), (n,))
+    d_earth = None if earth_distance_m is None else np.broadcast_to(np.asarray(earth_distance_m, float), (n,))
     rows = []
     skipped: dict = {}
     for j, (target, vecs, vis, noise) in enumerate((("earth", nadir_c, horizon_visible, HORIZON_NOISE),
@@ -126,7 +152,7 @@ def camera_truth_vectors(camera, k: int, t_ns, nadir_c, sun_c, alpha_earth, hori
         if target not in targets:
             continue
         vecs = np.asarray(vecs, float)
-        idx, P, Po, npx, conic = [], [], [], [], []
+        idx, P, Po, npx, conic, g = [], [], [], [], [], []
         for i in np.flatnonzero(np.asarray(vis, bool)):
             if target == "earth":
                 alpha, method = float(alpha_earth[i]), "constrained"
@@ -138,6 +164,8 @@ def camera_truth_vectors(camera, k: int, t_ns, nadir_c, sun_c, alpha_earth, hori
                 key = f"{target}: {pred.reason.split('(')[0].strip()}"
                 skipped[key] = skipped.get(key, 0) + 1
                 continue
+            if target == "earth" and edge_ref_m is not None:
+                g.append(_edge_sensitivity(camera, pred.pixels, vecs[i], alpha, float(d_earth[i])))
             idx.append(i)
             P.append(pred.covariance.P_c)
             Po.append(pred.covariance.P_sphere)
@@ -150,9 +178,23 @@ def camera_truth_vectors(camera, k: int, t_ns, nadir_c, sun_c, alpha_earth, hori
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_STREAM_BASE + 10 * int(k) + j,)))
         t_s = (t_ns[idx] - t_ns[idx[0]]) / 1e9
         drawn = draw_vector_errors(vecs[idx], P, t_s, rng, T_c=T_c, gm_fraction=gm_fraction)
+        e_meas, g_c, ref = drawn.e_meas, np.full((idx.size, 3), np.nan), np.nan
+        if g:
+            g_c, ref = np.array(g), float(edge_ref_m)
+            e_meas = e_meas + g_c * (float(edge_height_m) - ref)
+            e_meas = e_meas / np.linalg.norm(e_meas, axis=1, keepdims=True)
         for r, i in enumerate(idx):
-            rows.append((int(t_ns[i]), int(k), target, drawn.e_meas[r], P[r], Po[r], vecs[i], npx[r], conic[r]))
+            rows.append((int(t_ns[i]), int(k), target, e_meas[r], P[r], Po[r], vecs[i], npx[r], conic[r], g_c[r], ref))
     return _assemble(rows, skipped)
+
+
+def _edge_sensitivity(camera, pixels, e_true, alpha: float, d: float) -> np.ndarray:
+    """``g_c = d e_c / d h_e`` [1/m] of the fixed-height constrained fit on the arc ``pixels``
+    (module docstring): ``-de/dalpha dalpha/dh`` with ``dalpha/dh = 1 / (d cos alpha)``."""
+    from vision.camera import unproject_jacobian
+    from vision.fitting import alpha_sensitivity
+    rays, _ = unproject_jacobian(camera, np.asarray(pixels, float))
+    return -alpha_sensitivity(rays, np.asarray(e_true, float), alpha) / (d * math.cos(alpha))
 
 
 def _assemble(rows, skipped) -> TruthVectors:
@@ -162,9 +204,12 @@ def _assemble(rows, skipped) -> TruthVectors:
         return out
     rows.sort(key=lambda r: (r[0], r[1], r[2]))
     col = list(zip(*rows))
+    g, ref = np.array(col[9], float).reshape(-1, 3), np.array(col[10], float)
+    with_edge = bool(np.isfinite(ref).any())
     return TruthVectors(np.array(col[0], np.int64), np.array(col[1], int), np.array(col[2], dtype=str),
                         np.array(col[3]), np.array(col[4]), np.array(col[5]), np.array(col[6]),
-                        np.array(col[7], int), np.array(col[8], dtype=str), skipped)
+                        np.array(col[7], int), np.array(col[8], dtype=str), skipped,
+                        g if with_edge else None, ref if with_edge else None)
 
 
 def _merge(parts) -> TruthVectors:
@@ -172,14 +217,19 @@ def _merge(parts) -> TruthVectors:
     for p in parts:
         for key, v in p.skipped.items():
             skipped[key] = skipped.get(key, 0) + v
+        n = len(p)
+        g = np.full((n, 3), np.nan) if p.dedge_c is None else p.dedge_c
+        ref = np.full(n, np.nan) if p.edge_ref_m is None else p.edge_ref_m
         rows.extend(zip(p.t_ns.tolist(), p.camera.tolist(), p.target.tolist(), p.e_c, p.P_c, p.P_overbound,
-                        p.e_true, p.n_pixels.tolist(), p.conic_type.tolist()))
+                        p.e_true, p.n_pixels.tolist(), p.conic_type.tolist(), g, ref.tolist()))
     return _assemble(rows, skipped)
 
 
-def flight_truth_vectors(flight, seed: int | None = None, **kw) -> TruthVectors:
+def flight_truth_vectors(flight, seed: int | None = None, edge_ref_m: float | None = None, **kw) -> TruthVectors:
     """Vectors of every camera of a simulated flight (``scenarios.sim.simulate.FlightData``); ``seed``
-    defaults to the flight's. Keywords as :func:`camera_truth_vectors`."""
+    defaults to the flight's. ``edge_ref_m``: the edge height the Earth vectors are fitted at (the
+    true one is the scenario's ``horizon_atmosphere_m``; module docstring). Keywords as
+    :func:`camera_truth_vectors`."""
     from nav.ephemeris import sun_position_e
     seed = flight.seed if seed is None else seed
     parts = []
@@ -188,8 +238,12 @@ def flight_truth_vectors(flight, seed: int | None = None, **kw) -> TruthVectors:
         true_ns = flight.to_ns(ct.t)
         idx = np.round(ct.t / flight.truth.dt).astype(int)
         dist = np.linalg.norm(sun_position_e(true_ns) - flight.truth.x_e[idx], axis=1)
+        edge = {}
+        if edge_ref_m is not None:
+            edge = dict(edge_ref_m=edge_ref_m, edge_height_m=flight.scenario.simulation.horizon_atmosphere_m,
+                        earth_distance_m=np.linalg.norm(flight.truth.x_e[idx], axis=1))
         parts.append(camera_truth_vectors(c.camera, c.k, c.t_ns, ct.nadir_c, ct.sun_c, ct.alpha, ct.horizon_visible,
-                                          ct.sun_in_view, dist, seed=seed, **kw))
+                                          ct.sun_in_view, dist, seed=seed, **edge, **kw))
     return _merge(parts)
 
 
