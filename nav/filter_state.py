@@ -153,33 +153,30 @@ class FilterState:
             self._gyro_decay(ts[k_end] - ts[k], d_out)
 
     def _gyro_decay(self, dt: float, d_out) -> None:
-        """The Gauss-Markov gyro error over ``dt`` [s]: its rows of Phi are ``phi e_i`` (the
-        block's propagation left them at identity; its columns in the attitude rows are the
-        kernel's), so ``Phi P Phi^T`` is the block's result with those rows and columns scaled by
-        phi, plus the driving noise ``(1 - phi^2) sigma^2`` (the exact discrete form of the PSD
-        ``2 sigma^2 / tau``); the fed-back estimate decays by phi and the INS applies it."""
-        phi = np.exp(-dt / self.tuning.gyro_gm_tau_s)
-        i = self.gyro_gm
-        self.P[i, :] *= phi
-        self.P[:, i] *= phi
-        self.P[i, i] += (1.0 - phi * phi) * self.tuning.gyro_gm.sigma ** 2
-        d_out[i] = phi
+        """The Gauss-Markov gyro error over ``dt`` [s] (:meth:`_gm_decay`; its columns in the
+        attitude rows are the kernel's); the fed-back estimate decays by phi and the INS applies it."""
+        phi = self._gm_decay(self.gyro_gm, dt, self.tuning.gyro_gm_tau_s, self.tuning.gyro_gm.sigma, d_out)
         self.gw_hat *= phi
         self.cal_m[1, 3] = self.calibration.b_w + self.gw_hat
 
     def _edge_decay(self, dt: float, d_out) -> None:
-        """The Gauss-Markov edge heights over ``dt`` [s]: their rows of Phi are ``phi e_i`` (nothing
-        else enters them), so ``Phi P Phi^T`` is the block's propagation with those rows and
-        columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``; the estimates
-        relax towards their initial values."""
-        phi = np.exp(-dt / self.tuning.edge_height_tau_s)
-        i = self.edge_gm
-        self.P[i, :] *= phi
-        self.P[:, i] *= phi
-        self.P[i, i] += (1.0 - phi * phi) * self.tuning.edge_height.sigma ** 2
-        d_out[i] = phi
+        """The Gauss-Markov edge heights over ``dt`` [s] (:meth:`_gm_decay`); the estimates relax
+        towards their initial values."""
+        phi = self._gm_decay(self.edge_gm, dt, self.tuning.edge_height_tau_s, self.tuning.edge_height.sigma, d_out)
         cams = self.edge_gm_cams
         self.edge_hat[cams] = self.edge0[cams] + phi * (self.edge_hat[cams] - self.edge0[cams])
+
+    def _gm_decay(self, i, dt: float, tau: float, sigma: float, d_out) -> float:
+        """First-order Gauss-Markov states ``i`` over ``dt`` [s]: their rows of Phi are ``phi e_i``
+        (the block's propagation left them at identity), so ``Phi P Phi^T`` is the block's result
+        with those rows and columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``
+        (the exact discrete form of the PSD ``2 sigma^2 / tau``). Returns phi."""
+        phi = np.exp(-dt / tau)
+        self.P[i, :] *= phi
+        self.P[:, i] *= phi
+        self.P[i, i] += (1.0 - phi * phi) * sigma ** 2
+        d_out[i] = phi
+        return phi
 
     def calibration_changed(self) -> None:
         """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into
