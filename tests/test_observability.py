@@ -76,7 +76,7 @@ def test_flags_against_what_the_flight_observes(report, short, tmp_path):
     reduce it (reduction 0 to 1e-9) and it is flagged for consideration. The gyro scale factor of
     the axis the vehicle barely rotates about (body rate RMS below 0.5 deg/s on the coast, so
     s_w w is below 0.5 deg/s * 2000 ppm = 3.6 deg/h, under the gyro bias it competes with) is
-    flagged, that of the axis it turns about (RMS above 0.8 deg/s) is not; attitude (roll, pitch) and accelerometer bias (with GPS) and camera 0's
+    flagged, that of the axis it turns about (RMS above 0.8 deg/s) is not; the attitude errors about e's x and y axes, the accelerometer bias (with GPS) and camera 0's
     misalignment are strongly observed (reduction > 0.5) and not flagged. The written CSV reads
     back with the same numbers."""
     fi, _ = short
@@ -104,3 +104,24 @@ def test_flags_against_what_the_flight_observes(report, short, tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "rep" / "observability.csv")))
     assert [x["state"] for x in rows] == names
     assert all(math.isclose(float(x["reduction"]), r[x["state"]], rel_tol=1e-5, abs_tol=1e-9) for x in rows)
+
+
+def test_cli_report_only(vlog, tmp_path, capsys):
+    """``horizon-nav tune LOG --report DIR --report-only``: no optimisation, no tuning file; the
+    table, the HTML and one PNG per state group are written, and the summary is printed. Missing
+    or contradictory options give a one-line error (exit 2)."""
+    from scenarios.cli._main import main
+    d = tmp_path / "obs"
+    rc = main(["tune", str(vlog), "--from", "T+60", "--to", "T+100", "--quiet", "--report", str(d), "--report-only"])
+    text = capsys.readouterr().out
+    print(text)
+    assert rc == 0 and "observability:" in text and "filter runs" not in text
+    rows = list(csv.DictReader(open(d / "observability.csv")))
+    groups = {x["group"] for x in rows}
+    assert {"dx", "dv", "psi", "psi_c_0", "psi_c_1"} <= groups
+    assert all((d / f"sigma_{g}.png").stat().st_size > 0 for g in groups)
+    assert "<table>" in (d / "observability.html").read_text()
+    assert all(0.0 <= float(x["reduction"]) <= 1.0 + 1e-9 for x in rows)
+    assert main(["tune", str(vlog), "--report-only", "--quiet"]) == 2
+    assert main(["tune", str(vlog), "--quiet"]) == 2
+    assert main(["tune", str(vlog), "--report", str(d), "--report-only", "--report-low", "0.6", "--quiet"]) == 2

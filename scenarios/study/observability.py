@@ -221,7 +221,7 @@ def _plot_group(rep: ObservabilityReport, group: str, path: str) -> None:
         ax.plot(rep.t_s, f * np.sqrt(rep.P_smoothed[:, i]), color=col, lw=1.5,
                 label=f"{rep.names[i]} ({100 * rep.reduction[i]:.0f} %)")
         ax.plot(rep.t_s, f * np.sqrt(rep.P_prior[:, i]), color=col, lw=0.6, ls=":")
-    ax.set_xlabel(f"time from the first epoch [s]")
+    ax.set_xlabel("time from the first epoch [s]")
     ax.set_ylabel(f"1-sigma [{unit}]" if unit else "1-sigma")
     ax.set_title(f"{group}: smoothed (solid), forward (dashed), without updates (dotted)")
     ax.legend(fontsize=8)
