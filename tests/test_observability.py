@@ -125,3 +125,16 @@ def test_cli_report_only(vlog, tmp_path, capsys):
     assert main(["tune", str(vlog), "--report-only", "--quiet"]) == 2
     assert main(["tune", str(vlog), "--quiet"]) == 2
     assert main(["tune", str(vlog), "--report", str(d), "--report-only", "--report-low", "0.6", "--quiet"]) == 2
+
+
+def test_cli_report_after_tuning(vlog, tmp_path, capsys):
+    """``tune -o FILE --report DIR``: the tuning file and the report are both written; the report's
+    E/C column is the tuning's own choice (003 table 3 considers the IMU scale factors)."""
+    from scenarios.cli._main import main
+    d, out = tmp_path / "obs", tmp_path / "t.toml"
+    rc = main(["tune", str(vlog), "--from", "T+60", "--to", "T+100", "--quiet", "--params", "gps_noise_scale",
+               "--max-iter", "2", "-o", str(out), "--report", str(d)])
+    text = capsys.readouterr().out
+    assert rc == 0 and out.exists() and "gps_noise_scale" in text and "observability:" in text
+    rows = {x["state"]: x for x in csv.DictReader(open(d / "observability.csv"))}
+    assert rows["gyro_scale_x"]["mode"] == "C" and rows["psi_c_0_x"]["mode"] == "E"
