@@ -4,7 +4,9 @@ flight by maximum likelihood of the innovations (:mod:`scenarios.study.tune`, do
 The vision runs once (or the log's vectors are used); every likelihood evaluation replays the
 filter on those vectors. Prints each estimate with its standard error, the parameters the flight
 does not identify with the reason, the number of filter runs and the time per run; writes the
-tuning file (overrides of the base tuning, each estimate commented) atomically."""
+tuning file (overrides of the base tuning, each estimate commented) atomically. ``--report DIR``
+adds the observability report (:mod:`scenarios.study.observability`) at the tuned parameters;
+``--report-only`` writes it at the base tuning without the optimisation."""
 from __future__ import annotations
 
 NAME = "tune"
@@ -14,7 +16,7 @@ HELP = "estimate the filter's noise parameters from a flight (maximum likelihood
 def add_arguments(p) -> None:
     from scenarios.study.tune import DEFAULT_PARAMS, PARAMS
     p.add_argument("log", help="flight log (.mcap)")
-    p.add_argument("-o", "--output", required=True, help="tuning TOML to write")
+    p.add_argument("-o", "--output", default=None, help="tuning TOML to write (required unless --report-only)")
     p.add_argument("--params", default=None,
                    help=f"comma-separated parameters to estimate (default: {','.join(DEFAULT_PARAMS)}; "
                         f"known: {','.join(sorted(PARAMS))})")
@@ -29,6 +31,14 @@ def add_arguments(p) -> None:
                    help="auto: images if the log has them, else its vectors")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--max-iter", type=int, default=20, help="scoring iterations per round (default 20)")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="write the observability report (CSV, HTML, PNG per state group) into DIR")
+    p.add_argument("--report-only", action="store_true",
+                   help="no optimisation: the report at the base tuning (needs --report; -o not needed)")
+    p.add_argument("--report-low", type=float, default=0.10,
+                   help="variance reduction below which an estimated state is flagged for consideration (default 0.10)")
+    p.add_argument("--report-high", type=float, default=0.50,
+                   help="variance reduction from which a considered state is flagged for estimation (default 0.50)")
     p.add_argument("--verbose", action="store_true", help="print -log L and the parameters at every iteration")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -52,6 +62,13 @@ def run(args) -> int:
     if unknown or not names:
         raise UserError(f"--params {args.params}: unknown parameter {unknown[0] if unknown else ''!r}; "
                         f"expected some of {','.join(sorted(PARAMS))}")
+    if args.report_only and not args.report:
+        raise UserError("--report-only: needs --report DIR (the folder to write the report into)")
+    if not args.output and not args.report_only:
+        raise UserError("-o/--output: expected the tuning TOML to write (or --report DIR --report-only)")
+    if not 0.0 <= args.report_low <= args.report_high <= 1.0:
+        raise UserError(f"--report-low/--report-high: expected 0 <= low <= high <= 1, got "
+                        f"{args.report_low} and {args.report_high}")
     cams = camera_numbers(args.cameras)
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     base = _tuning(args.tuning)
@@ -69,6 +86,8 @@ def run(args) -> int:
         lg = logging.getLogger("scenarios.study.tune")
         lg.addHandler(h)
         lg.setLevel(logging.INFO)
+    if args.report_only:
+        return _report(args, inputs, base)
     with tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
         try:
             res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar)
@@ -79,4 +98,15 @@ def run(args) -> int:
               f"innovations; standard errors from the Fisher information; base: {args.tuning or '003 table 3'}).\n"
               f"-log L {res.nll_prior:.1f} -> {res.nll:.1f} over {res.n_measurements} measurement blocks.")
     print(atomic_write_text(args.output, tuning_toml(res, overrides, header)))
+    return _report(args, inputs, res.tuning) if args.report else 0
+
+
+def _report(args, inputs, tuning) -> int:
+    """The observability report of the flight at ``tuning`` into ``args.report``."""
+    from scenarios.study.observability import observability, write_report
+    rep = observability(inputs, tuning, low=args.report_low, high=args.report_high)
+    print(rep.summary())
+    for path in write_report(rep, args.report):
+        if path.suffix != ".png":
+            print(path)
     return 0
