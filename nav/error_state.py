@@ -2,7 +2,7 @@
 
 Order (groups switched ``"off"`` in the tuning are left out)::
 
-    dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w | psi_c[k] for each camera k
+    dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w | g_w | psi_c[k] for each camera k
                     | dt_c[k] for each camera k | zeta[k, target] for each camera k and target
                     | h_e[k] for each camera k
 
@@ -11,6 +11,8 @@ Order (groups switched ``"off"`` in the tuning are left out)::
 * ``b_f, b_w`` residual accelerometer / gyro bias (measurement minus truth after calibration);
 * ``s_f, s_w`` residual scale factors, ``m_f, m_w`` residual small-angle misalignments
   (sensitivities in :mod:`nav.imu_errors`);
+* ``g_w`` Gauss-Markov gyro error [rad/s] (group ``gyro_gm``): a first-order process of
+  correlation time ``Tuning.gyro_gm_tau_s`` that enters the attitude error as the bias does;
 * ``psi_c`` camera misalignment in b, ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50));
 * ``dt_c`` camera clock offset error [s], true minus estimated offset (one state per camera,
   :mod:`nav.clock_offset`; a constant: identity transition);
@@ -37,6 +39,8 @@ from nav.tuning import Tuning
 #: number of leading states (dx, dv, psi) whose transition rows are dense; the others are diagonal
 N_NAV = 9
 IMU_GROUPS = ("accel_bias", "gyro_bias", "accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
+#: the groups whose first column :func:`nav_transition` takes: the IMU groups and the Gauss-Markov gyro error
+TRANSITION_GROUPS = IMU_GROUPS + ("gyro_gm",)
 
 
 @dataclass(frozen=True)
@@ -117,6 +121,8 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
         g = getattr(tuning, name)
         if g.on:
             add(name, g.estimated, g.sigma)
+    if tuning.gyro_gm.on:
+        add("gyro_gm", tuning.gyro_gm.estimated, tuning.gyro_gm.sigma)
     if n_cameras:
         if tuning.camera_misalignment.on:
             for k in range(n_cameras):
@@ -144,12 +150,14 @@ def gravity_gradient(x_e) -> np.ndarray:
     return GM / r ** 3 * (3.0 * np.outer(u, u) - np.eye(3)) + np.diag([OMEGA_E ** 2, OMEGA_E ** 2, 0.0])
 
 
-def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge: float = 0.0) -> np.ndarray:
+def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge: float = 0.0,
+                   tau_gyro: float = 0.0) -> np.ndarray:
     """Continuous-time error dynamics F (n, n) of the e-frame mechanisation (:mod:`nav.ins`)::
 
         d(dx)/dt  = dv
         d(dv)/dt  = G dx - 2 [w_ie x] dv - [(R_eb f_b) x] psi - R_eb delta_f
-        d(psi)/dt = -[w_ie x] psi - R_eb delta_w
+        d(psi)/dt = -[w_ie x] psi - R_eb (delta_w + g_w)
+        d(g_w)/dt = -g_w / tau_gyro       (Gauss-Markov gyro error, when in the layout)
         d(zeta)/dt = -zeta / T_c          (003 §6.3)
         d(h_e)/dt  = -h_e / tau_edge      (a constant when tau_edge is 0)
 
@@ -172,6 +180,9 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge
     for name, (row, S) in sens.items():
         if layout.has(name):
             F[row, layout[name]] = -R_eb @ S
+    if layout.has("gyro_gm"):
+        F[ip, layout["gyro_gm"]] = -R_eb
+        F[layout["gyro_gm"], layout["gyro_gm"]] = -np.eye(3) / tau_gyro
     for g in layout.groups:
         if g.name.startswith("zeta_"):
             F[g.slice, g.slice] = -np.eye(3) / tc
@@ -190,7 +201,7 @@ def discrete_transition(layout: StateLayout, F: np.ndarray, dt: float) -> np.nda
     m = N_NAV
     Phi[:m] += Fd[:m] + 0.5 * (Fd[:m] @ Fd)
     for g in layout.groups:
-        if g.name.startswith(("zeta_", "h_e_")):
+        if g.name.startswith(("zeta_", "h_e_", "gyro_gm")):
             d = np.exp(np.diag(Fd[g.slice, g.slice]))
             Phi[g.slice, g.slice] = np.diag(d)
     return Phi
@@ -219,10 +230,12 @@ class BlockTransition:
 
 
 @nb.njit(cache=True)
-def nav_transition(x, R, f, w, dt, cols, n, W, GM):
-    """Rows 0..8 of Phi = I + F dt + (F dt)^2/2 (see :func:`error_dynamics`); ``cols`` (6,) holds
+def nav_transition(x, R, f, w, dt, cols, n, W, GM, tau_w):
+    """Rows 0..8 of Phi = I + F dt + (F dt)^2/2 (see :func:`error_dynamics`); ``cols`` (7,) holds
     the first column of accel_bias, gyro_bias, accel_scale, accel_misalignment, gyro_scale,
-    gyro_misalignment (-1: absent)."""
+    gyro_misalignment and the Gauss-Markov gyro error gyro_gm (-1: absent; ``TRANSITION_GROUPS``),
+    ``tau_w`` the latter's correlation time [s]. The (F dt)^2/2 term is the product over the
+    navigation columns plus, for gyro_gm, ``-R dt (-dt / tau_w) / 2`` (its own decay)."""
     F = np.zeros((9, n))
     r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
     r = np.sqrt(r2)
@@ -242,7 +255,7 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM):
     F[3, 7] = fe[2]; F[3, 8] = -fe[1]
     F[4, 6] = -fe[2]; F[4, 8] = fe[0]
     F[5, 6] = fe[1]; F[5, 7] = -fe[0]
-    for g in range(6):
+    for g in range(7):
         c = cols[g]
         if c < 0:
             continue
@@ -251,7 +264,7 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM):
         K = skew(v)
         for i in range(3):
             for j in range(3):
-                if g <= 1:
+                if g <= 1 or g == 6:
                     val = -R[i, j]
                 elif g == 2 or g == 4:
                     val = -R[i, j] * v[j]
@@ -265,6 +278,12 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM):
     A = Fd + 0.5 * (np.ascontiguousarray(Fd[:, :9]) @ Fd)
     for i in range(9):
         A[i, i] += 1.0
+    c = cols[6]
+    if c >= 0:
+        k2 = 0.5 * dt * dt / tau_w
+        for i in range(3):
+            for j in range(3):
+                A[6 + i, c + j] += k2 * R[i, j]
     return A
 
 
@@ -272,12 +291,13 @@ class TransitionBuilder:
     """Builds :class:`BlockTransition` for a layout with the compiled :func:`nav_transition` (the
     filter's form of :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
 
-    def __init__(self, layout: StateLayout, tc: float, tau_edge: float = 0.0):
+    def __init__(self, layout: StateLayout, tc: float, tau_edge: float = 0.0, tau_gyro: float = 0.0):
         self.n = layout.n
         self.layout = layout
-        self.tc, self.tau_edge = tc, tau_edge
+        self.tc, self.tau_edge, self.tau_gyro = tc, tau_edge, tau_gyro
         self.edge = edge_gm_indices(layout, tau_edge)
-        self.cols = np.array([layout[nm].start if layout.has(nm) else -1 for nm in IMU_GROUPS], dtype=np.int64)
+        self.gyro = gyro_gm_indices(layout)
+        self.cols = transition_columns(layout)
         self.zeta = np.zeros(self.n, bool)
         for g in layout.groups:
             if g.name.startswith("zeta_"):
@@ -286,12 +306,27 @@ class TransitionBuilder:
     def __call__(self, x_e, R_eb, f_b, w_b, dt) -> BlockTransition:
         from nav.earth import GM, OMEGA_E
         A = nav_transition(np.asarray(x_e, float), np.ascontiguousarray(R_eb), np.asarray(f_b, float),
-                            np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM)
+                            np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM, float(self.tau_gyro))
         d = np.ones(self.n)
         d[self.zeta] = np.exp(-dt / self.tc)
         if self.edge.size:
             d[self.edge] = np.exp(-dt / self.tau_edge)
+        if self.gyro.size:
+            d[self.gyro] = np.exp(-dt / self.tau_gyro)
         return BlockTransition(A, d)
+
+
+def transition_columns(layout: StateLayout) -> np.ndarray:
+    """(7,) int64 first column of each of ``TRANSITION_GROUPS`` (-1: absent), as
+    :func:`nav_transition` reads them."""
+    return np.array([layout[nm].start if layout.has(nm) else -1 for nm in TRANSITION_GROUPS], dtype=np.int64)
+
+
+def gyro_gm_indices(layout: StateLayout) -> np.ndarray:
+    """State indices (3,) of the Gauss-Markov gyro error ``g_w`` (empty when not in the layout)."""
+    if not layout.has("gyro_gm"):
+        return np.zeros(0, np.int64)
+    return np.arange(layout["gyro_gm"].start, layout["gyro_gm"].stop, dtype=np.int64)
 
 
 def edge_gm_indices(layout: StateLayout, tau_edge: float) -> np.ndarray:

@@ -9,15 +9,17 @@ are packed so that the kernels take a few arrays instead of one argument per qua
 * ``nav`` (10,): x_e, v_e, q_eb (``x``, ``v``, ``q`` are views of it);
 * ``fed`` (flat): every fed-back estimate, viewed as ``cal_arr`` (6, 3) (the
   :class:`nav.imu_errors.ImuCalibration` fields, in ``CAL_FIELDS`` order), ``R_bc`` (cameras, 3, 3),
-  ``zeta`` (groups, 3), ``clk_hat`` (cameras,) and ``edge_hat`` (cameras,), the Earth edge
-  heights [m];
+  ``zeta`` (groups, 3), ``clk_hat`` (cameras,), ``edge_hat`` (cameras,), the Earth edge
+  heights [m], and with the Gauss-Markov gyro error in the layout ``gw_hat`` (3,) [rad/s];
 * ``fb`` (k, 3) int64: the feedback table, one row ``(operation, offset in fed, first state index)``
   per estimated group (:func:`feedback_table`);
 * ``cal_m`` (2, 4, 3): the calibration the INS applies, ``A (x - b)``: rows 0..2 of ``[0]`` are
-  A_f and row 3 is b_f, ``[1]`` the same for the gyro;
+  A_f and row 3 is b_f, ``[1]`` the same for the gyro, whose row 3 is ``b_w + gw_hat``
+  (:func:`biases_into_calibration`);
 * ``model`` (3 + n,): omega_ie, GM, T_c and the white process-noise rate of every state;
-  ``gm_idx`` (6 + groups,) int64: the first column of the six IMU error groups (-1: absent, as
-  :func:`nav.error_state.nav_transition` reads them) and of every zeta group.
+  ``gm_idx`` (7 + groups,) int64: the first column of the six IMU error groups and of the
+  Gauss-Markov gyro error (-1: absent, as :func:`nav.error_state.nav_transition` reads them) and
+  of every zeta group.
 
 A new state group is a group in :func:`nav.error_state.build_layout` (with its tuning entry), its
 columns in the transition if it is not a constant, and a feedback row in :func:`feedback_table`.
@@ -30,13 +32,15 @@ import numpy as np
 from nav import ins
 from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
 from nav.earth import GM, OMEGA_E
-from nav.error_state import IMU_GROUPS, StateLayout, edge_gm_indices, nav_transition, propagate_covariance
+from nav.error_state import (StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
+                             transition_columns)
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.tuning import Tuning
 
 CAL_FIELDS = ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w")  #: ImuCalibration fields, rows of ``cal_arr``
-FB_ADD3, FB_ROTATE, FB_ADD1 = 0, 1, 2   #: feedback operations: add 3 values, rotate a 3x3, add 1 value
+#: feedback operations: add 3 values, rotate a 3x3, add 1 value, add 3 values into the gyro's error
+FB_ADD3, FB_ROTATE, FB_ADD1, FB_GYRO = 0, 1, 2, 3
 _AFFINE = ("accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
 
 
@@ -44,8 +48,9 @@ def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndar
     """(k, 3) int64 rows ``(operation, offset in fed, first state index)`` of every estimated group
     beyond dx, dv, psi: the IMU error groups add into their calibration field, a camera
     misalignment rotates its mounting ``R_bc <- exp([psi_c x]) R_bc`` (003 eq. (50)), a zeta group
-    adds into its estimate, a clock offset into the camera's offset and an edge height into the
-    camera's height (layout of ``fed`` as in the module docstring)."""
+    adds into its estimate, a clock offset into the camera's offset, an edge height into the
+    camera's height and the Gauss-Markov gyro error into ``gw_hat``, which the INS subtracts with
+    the gyro bias (layout of ``fed`` as in the module docstring)."""
     o_cam, o_zeta = 18, 18 + 9 * n_cam
     o_clk = o_zeta + 3 * len(zeta_names)
     o_edge = o_clk + n_cam
@@ -63,6 +68,8 @@ def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndar
             rows.append((FB_ADD1, o_clk + int(g.name[5:]), g.slice.start))
         elif g.name.startswith("h_e_"):
             rows.append((FB_ADD1, o_edge + int(g.name[4:]), g.slice.start))
+        elif g.name == "gyro_gm":
+            rows.append((FB_GYRO, o_edge + n_cam, g.slice.start))
     return np.array(rows, dtype=np.int64).reshape(-1, 3)
 
 
@@ -94,7 +101,8 @@ class FilterState:
         n_cam = R_bc.shape[0]
         zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
         nz = len(zeta_groups)
-        self.fed = np.zeros(18 + 9 * n_cam + 3 * nz + 2 * n_cam)
+        self.gyro_gm = gyro_gm_indices(layout)
+        self.fed = np.zeros(18 + 9 * n_cam + 3 * nz + 2 * n_cam + self.gyro_gm.size)
         self.cal_arr = self.fed[:18].reshape(6, 3)
         self.R_bc = self.fed[18:18 + 9 * n_cam].reshape(n_cam, 3, 3)
         self.R_bc[:] = R_bc
@@ -102,7 +110,8 @@ class FilterState:
         o_clk = 18 + 9 * n_cam + 3 * nz
         self.clk_hat = self.fed[o_clk:o_clk + n_cam]
         self.clk0 = clk0
-        self.edge_hat = self.fed[o_clk + n_cam:]
+        self.edge_hat = self.fed[o_clk + n_cam:o_clk + 2 * n_cam]
+        self.gw_hat = self.fed[o_clk + 2 * n_cam:]
         self.edge0 = np.zeros(n_cam) if edge0 is None else np.asarray(edge0, float).reshape(n_cam)
         self.edge_hat[:] = self.edge0
         self.edge_gm = edge_gm_indices(layout, tuning.edge_height_tau_s)
@@ -120,8 +129,8 @@ class FilterState:
         self.model[:3] = (OMEGA_E, GM, tuning.correlation_time_s)
         self.model[3 + layout["dv"].start:3 + layout["dv"].stop] = tuning.accel_white ** 2
         self.model[3 + layout["psi"].start:3 + layout["psi"].stop] = tuning.gyro_white ** 2
-        self.gm_idx = np.array([layout[nm].start if layout.has(nm) else -1 for nm in IMU_GROUPS]
-                               + [g.slice.start for g in zeta_groups], dtype=np.int64)
+        self.gm_idx = np.concatenate([transition_columns(layout),
+                                      np.array([g.slice.start for g in zeta_groups], dtype=np.int64)])
 
     def _set_calibration(self, affine: bool) -> None:
         """Refresh ``cal_m`` from the calibration estimate (A stays as it is unless ``affine``)."""
@@ -131,27 +140,43 @@ class FilterState:
         else:
             b_f, b_w = self.calibration.b_f, self.calibration.b_w
         self.cal_m[0, 3], self.cal_m[1, 3] = b_f, b_w
+        if self.gyro_gm.size:
+            self.cal_m[1, 3] += self.gw_hat
 
     def propagate(self, ts, fw, traj, k: int, k_end: int, avg: bool, A_out, d_out) -> None:
         """The INS and the covariance from IMU sample k to k_end (:func:`propagate_block`)."""
         propagate_block(self.nav, self.cal_m, ts, fw, traj, k, k_end, avg, self.model, self.gm_idx, self.P_c,
-                        self.zeta, self.P, A_out, d_out)
+                        self.zeta, self.P, A_out, d_out, self.tuning.gyro_gm_tau_s)
         if self.edge_gm.size:
             self._edge_decay(ts[k_end] - ts[k], d_out)
+        if self.gyro_gm.size:
+            self._gyro_decay(ts[k_end] - ts[k], d_out)
+
+    def _gyro_decay(self, dt: float, d_out) -> None:
+        """The Gauss-Markov gyro error over ``dt`` [s] (:meth:`_gm_decay`; its columns in the
+        attitude rows are the kernel's); the fed-back estimate decays by phi and the INS applies it."""
+        phi = self._gm_decay(self.gyro_gm, dt, self.tuning.gyro_gm_tau_s, self.tuning.gyro_gm.sigma, d_out)
+        self.gw_hat *= phi
+        self.cal_m[1, 3] = self.calibration.b_w + self.gw_hat
 
     def _edge_decay(self, dt: float, d_out) -> None:
-        """The Gauss-Markov edge heights over ``dt`` [s]: their rows of Phi are ``phi e_i`` (nothing
-        else enters them), so ``Phi P Phi^T`` is the block's propagation with those rows and
-        columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``; the estimates
-        relax towards their initial values."""
-        phi = np.exp(-dt / self.tuning.edge_height_tau_s)
-        i = self.edge_gm
-        self.P[i, :] *= phi
-        self.P[:, i] *= phi
-        self.P[i, i] += (1.0 - phi * phi) * self.tuning.edge_height.sigma ** 2
-        d_out[i] = phi
+        """The Gauss-Markov edge heights over ``dt`` [s] (:meth:`_gm_decay`); the estimates relax
+        towards their initial values."""
+        phi = self._gm_decay(self.edge_gm, dt, self.tuning.edge_height_tau_s, self.tuning.edge_height.sigma, d_out)
         cams = self.edge_gm_cams
         self.edge_hat[cams] = self.edge0[cams] + phi * (self.edge_hat[cams] - self.edge0[cams])
+
+    def _gm_decay(self, i, dt: float, tau: float, sigma: float, d_out) -> float:
+        """First-order Gauss-Markov states ``i`` over ``dt`` [s]: their rows of Phi are ``phi e_i``
+        (the block's propagation left them at identity), so ``Phi P Phi^T`` is the block's result
+        with those rows and columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``
+        (the exact discrete form of the PSD ``2 sigma^2 / tau``). Returns phi."""
+        phi = np.exp(-dt / tau)
+        self.P[i, :] *= phi
+        self.P[:, i] *= phi
+        self.P[i, i] += (1.0 - phi * phi) * sigma ** 2
+        d_out[i] = phi
+        return phi
 
     def calibration_changed(self) -> None:
         """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into
@@ -181,27 +206,29 @@ class FilterState:
 
 
 @nb.njit(cache=True)
-def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c, zeta, P, A_out, d_out):
+def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c, zeta, P, A_out, d_out, tau_w):
     """One covariance block from sample k to k_end: the INS (:func:`nav.ins.ins_kernel`; ``nav``
     updated in place, the states written into ``traj`` (N, 10) rows x, v, q), the block transition
     (:func:`nav.error_state.nav_transition` into ``A_out`` (9, n); ``d_out`` (n,) the diagonal of
     the other rows), the covariance propagation with white and Gauss-Markov process noise
     (:func:`nav.error_state.propagate_covariance`, P in place; 003 eqs. (41)-(45):
     ``P_zeta += (1 - phi^2) P_c``) and the decay of the zeta estimates. Packed arguments: module
-    docstring; ``fw`` (N, 2, 3) the measured specific force and rate of each sample."""
+    docstring; ``fw`` (N, 2, 3) the measured specific force and rate of each sample; ``tau_w``
+    the correlation time of the Gauss-Markov gyro error (read only when it is in ``gm_idx``)."""
     x, q = nav[0:3], nav[6:10]
     stats = np.empty(6)
     ins.ins_kernel(nav, ts, fw, k, k_end, cal_m, traj, stats, avg)
     dt = ts[k_end] - ts[k]
     n = P.shape[0]
-    A = nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:6], n, model[0], model[1])
+    A = nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:7], n, model[0], model[1],
+                       tau_w)
     phi = np.exp(-dt / model[2])
     for i in range(9):
         for j in range(n):
             A_out[i, j] = A[i, j]
     for i in range(n):
         d_out[i] = 1.0
-    zeta_start = gm_idx[6:]
+    zeta_start = gm_idx[7:]
     for g in range(zeta_start.size):
         for i in range(3):
             d_out[zeta_start[g] + i] = phi
@@ -226,10 +253,10 @@ def feedback_kernel(dx, nav, fed, fb):
     changed = False
     for r in range(fb.shape[0]):
         op, o, st = fb[r, 0], fb[r, 1], fb[r, 2]
-        if op == FB_ADD3:
+        if op == FB_ADD3 or op == FB_GYRO:
             for i in range(3):
                 fed[o + i] += dx[st + i]
-            changed = changed or o < 18
+            changed = changed or o < 18 or op == FB_GYRO
         elif op == FB_ROTATE:
             R = np.empty((3, 3))
             for i in range(3):
@@ -242,6 +269,19 @@ def feedback_kernel(dx, nav, fed, fb):
         else:
             fed[o] += dx[st]
     return changed
+
+
+@nb.njit(cache=True)
+def biases_into_calibration(fed, fb, cal_m):
+    """Row 3 of ``cal_m`` from the fed-back estimates: ``b_f``, and ``b_w`` plus the Gauss-Markov
+    gyro error where the feedback table ``fb`` has one (the INS subtracts both)."""
+    for i in range(3):
+        cal_m[0, 3, i] = fed[i]
+        cal_m[1, 3, i] = fed[3 + i]
+    for r in range(fb.shape[0]):
+        if fb[r, 0] == FB_GYRO:
+            for i in range(3):
+                cal_m[1, 3, i] += fed[fb[r, 1] + i]
 
 
 @nb.njit(cache=True)

@@ -629,14 +629,14 @@ def estimates_from_fed(layout: StateLayout, fb: np.ndarray, fed: np.ndarray, R_b
     """(K, n) estimates in the layout's coordinates from the fed-back arrays ``fed`` (K, m) laid
     out as ``FilterState.fed``, through the feedback table ``fb``
     (:func:`nav.filter_state.feedback_table`): an additive group (IMU errors into the calibration,
-    zeta, clock offsets) is its accumulated value, a camera misalignment the rotation vector of
+    the Gauss-Markov gyro error, zeta, clock offsets) is its accumulated value, a camera misalignment the rotation vector of
     ``R_bc R_bc_nom^T`` (003 eq. (50) composes the corrections as rotations). Navigation and
     considered states are 0."""
-    from nav.filter_state import FB_ADD1, FB_ADD3, FB_ROTATE
+    from nav.filter_state import FB_ADD1, FB_ADD3, FB_GYRO, FB_ROTATE
     K = fed.shape[0]
     out = np.zeros((K, layout.n))
     for op, off, col in fb.tolist():
-        if op == FB_ADD3:
+        if op in (FB_ADD3, FB_GYRO):
             out[:, col:col + 3] = fed[:, off:off + 3]
         elif op == FB_ADD1:
             out[:, col] = fed[:, off]

@@ -9,7 +9,8 @@ default, an unknown table or key is an error naming it::
                 gyro_white_noise_deg_rth, gyro_white_noise_extra_deg_rth,
                 gyro_range_deg_s, accel_range_g, max_gap_s
     [states.<group>]  mode = "E" | "C" | "off", sigma_<unit>  (groups and units: ``_GROUPS``;
-                [states.edge_height] also takes correlation_time_s, 0 for a constant)
+                [states.edge_height] also takes correlation_time_s, 0 for a constant;
+                [states.gyro_gm] takes correlation_time_s, > 0)
     [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg,
                 white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon)
     [gps]       noise_scale
@@ -84,6 +85,14 @@ class Tuning:
     edge_height_tau_s : float
         Correlation time of ``h_e`` as a first-order Gauss-Markov process about its initial value
         with the stationary sigma ``edge_height.sigma`` [s]; 0: a constant.
+    gyro_gm : StateGroupTuning
+        First-order Gauss-Markov gyro error ``g_w`` [rad/s] per axis, beside the constant bias
+        ``gyro_bias``: the correlated drift at time scales of ``gyro_gm_tau_s`` (the white gyro
+        noise ``gyro_white`` covers the short ones). ``sigma`` is its stationary 1-sigma (also its
+        initial one). Off by default; TOML ``[states.gyro_gm]`` with ``sigma_deg_h`` and
+        ``correlation_time_s``.
+    gyro_gm_tau_s : float
+        Correlation time of ``g_w`` [s]: ``phi = exp(-dt/tau)``, driving noise PSD ``2 sigma^2 / tau``.
     vector_white : float
         White noise (1 sigma, per axis, unit-vector units) added to eq. (49) as Q_tuning.
     vector_gm_mode : str
@@ -151,6 +160,8 @@ class Tuning:
     camera_clock_offset: StateGroupTuning = StateGroupTuning("off", 0.05)
     edge_height: StateGroupTuning = StateGroupTuning("off", 20e3)
     edge_height_tau_s: float = 0.0
+    gyro_gm: StateGroupTuning = StateGroupTuning("off", math.radians(5.0) / 3600.0)
+    gyro_gm_tau_s: float = 100.0
     vector_white: float = 0.005
     vector_gm_mode: str = "C"
     correlation_time_s: float = 20.0
@@ -227,6 +238,7 @@ _GROUPS = {  # key: (unit key, factor to SI)
     "camera_misalignment": ("sigma_deg", math.radians(1.0)),
     "camera_clock_offset": ("sigma_ms", 1e-3),
     "edge_height": ("sigma_km", 1e3),
+    "gyro_gm": ("sigma_deg_h", math.radians(1.0) / 3600.0),
 }
 
 
@@ -327,13 +339,17 @@ def _recovery_choices(rec: dict, kw: dict) -> None:
         kw["recovery_gated_fixes"] = _count("recovery", "gated_fixes", rec["gated_fixes"])
 
 
-def _edge_height_tau(states: dict, kw: dict) -> dict:
-    """``[states.edge_height] correlation_time_s`` into ``kw``; the states without that key."""
-    g = states.get("edge_height")
+def _group_tau(states: dict, kw: dict, group: str, field_: str, nonzero: bool = False) -> dict:
+    """``[states.<group>] correlation_time_s`` into ``kw[field_]`` (``nonzero``: it must be
+    positive); the states without that key."""
+    g = states.get(group)
     if not isinstance(g, dict) or "correlation_time_s" not in g:
         return states
-    kw["edge_height_tau_s"] = _positive(g["correlation_time_s"], "[states.edge_height] correlation_time_s")
-    return {**states, "edge_height": {k: v for k, v in g.items() if k != "correlation_time_s"}}
+    name = f"[states.{group}] correlation_time_s"
+    kw[field_] = _positive(g["correlation_time_s"], name)
+    if nonzero and not kw[field_] > 0:
+        raise ValueError(f"tuning {name}: expected a positive number, got {g['correlation_time_s']!r}")
+    return {**states, group: {k: v for k, v in g.items() if k != "correlation_time_s"}}
 
 
 def tuning_from_dict(d: dict) -> Tuning:
@@ -368,7 +384,8 @@ def tuning_from_dict(d: dict) -> Tuning:
     unknown = set(states) - set(_GROUPS)
     if unknown:
         raise ValueError(f"tuning [states]: unknown groups {sorted(unknown)}; expected {sorted(_GROUPS)}")
-    states = _edge_height_tau(states, kw)
+    states = _group_tau(states, kw, "edge_height", "edge_height_tau_s")
+    states = _group_tau(states, kw, "gyro_gm", "gyro_gm_tau_s", nonzero=True)
     for key, (unit_key, scale) in _GROUPS.items():
         kw[key] = _group(states, key, unit_key, scale, getattr(base, key))
     return replace(base, **kw)

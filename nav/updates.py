@@ -43,7 +43,7 @@ import numpy as np
 
 from nav.earth import OMEGA_E
 from nav.ephemeris import moon_position_e, sun_position_e
-from nav.filter_state import extrapolate, feedback_kernel
+from nav.filter_state import biases_into_calibration, extrapolate, feedback_kernel
 from nav.measurements import (predict_vector, target_direction_e, vector_covariance_problem,
                               vector_covariance_problems, vector_jacobians, vector_rate)
 from nav.rotation import tangent_basis
@@ -217,9 +217,7 @@ def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, 
     if status == OK:
         changed = feedback_kernel(dx, nav, fed, fb)
         if changed:
-            for i in range(3):
-                cal_m[0, 3, i] = fed[i]
-                cal_m[1, 3, i] = fed[3 + i]
+            biases_into_calibration(fed, fb, cal_m)
     return status, changed
 
 

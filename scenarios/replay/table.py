@@ -26,7 +26,7 @@ Columns (docs/replay.md "Exporting a solution" has the same list):
   need the full 3x3 blocks: exported from a solution log without them (metadata
   ``nav_covariance`` other than ``"full"``), they are NaN at the epochs whose block is diagonal;
 * every other estimated state, by its name in the solution (``accel_bias_x`` [m/s^2],
-  ``gyro_bias_x`` [rad/s], ``accel_scale_x``, ``gyro_scale_x`` [-], ``accel_misalignment_x``,
+  ``gyro_bias_x``, ``gyro_gm_x`` [rad/s], ``accel_scale_x``, ``gyro_scale_x`` [-], ``accel_misalignment_x``,
   ``gyro_misalignment_x`` [rad], ``psi_c_<k>_x`` [rad] (camera k's misalignment rotation vector,
   003 eq. (50)), ``dt_c_<k>`` [s] (camera clock offset refinement), ``zeta_<target>_<k>_x``
   [unit-vector units], ``h_e_<k>`` [m] (camera k's Earth edge height)): the estimate at the

@@ -16,7 +16,10 @@ Measurement model (per sensor triad, 003 table 3)::
 
 with the scale factors ``s`` (N(0, sigma_s^2) per axis), the misalignment ``N_off`` (six independent
 off-diagonal elements, N(0, sigma_m^2): non-orthogonal axes), the turn-on bias ``b`` (N(0, sigma_b^2)
-per axis), all drawn once per run, and white noise ``n``. A white-noise density N (angular / velocity
+per axis), all drawn once per run, and white noise ``n``. Optionally (``gyro_gm_deg_h`` > 0) the gyro
+bias also carries a first-order Gauss-Markov drift ``g_k = phi g_(k-1) + sigma sqrt(1 - phi^2) w_k``,
+``phi = exp(-dt / gyro_gm_tau_s)``, started from its stationary distribution N(0, sigma^2) (drawn
+after the turn-on errors, so a scenario without it draws the same numbers as before). A white-noise density N (angular / velocity
 random walk) gives a per-sample standard deviation ``N / sqrt(dt)`` for rate outputs (the variance of
 the mean of white noise over dt) and ``N sqrt(dt)`` for increments. Units: gyro N in deg/sqrt(h)
 = (deg/s)/sqrt(Hz) / 60; accelerometer N in mg/sqrt(Hz).
@@ -59,6 +62,7 @@ class ImuErrors:
     accel_scale: np.ndarray
     gyro_misalignment: np.ndarray  # (3, 3), zero diagonal
     accel_misalignment: np.ndarray
+    gyro_gm: np.ndarray | None = None  # (N, 3) Gauss-Markov gyro drift at each sample [rad/s]; None: none
 
     @property
     def M_g(self) -> np.ndarray:
@@ -109,6 +113,16 @@ def draw_imu_errors(cfg: ImuConfig, rng: np.random.Generator) -> ImuErrors:
     return ImuErrors(gb, ab, gs, as_, gm, am)
 
 
+def gauss_markov_drift(n: int, dt: float, sigma: float, tau: float, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) first-order Gauss-Markov sequence of stationary 1-sigma ``sigma`` and correlation time
+    ``tau`` [s] sampled every ``dt`` [s], starting from its stationary distribution (module docstring)."""
+    from scipy.signal import lfilter
+    phi = np.exp(-dt / tau)
+    e = rng.normal(0.0, sigma, (n, 3))
+    e[1:] *= np.sqrt(1.0 - phi * phi)
+    return lfilter([1.0], [1.0, -phi], e, axis=0)
+
+
 def noise_sigmas(cfg: ImuConfig, output: str, dt: float) -> tuple[float, float]:
     """Per-sample white-noise standard deviations (gyro, accel) for the output type."""
     ng = cfg.gyro_noise_deg_rt_h * DEG_RT_H
@@ -134,6 +148,8 @@ def apply_errors(ideal: ImuSamples, cfg: ImuConfig, errors: ImuErrors | None,
     if errors is not None:
         k = dt if inc else 1.0
         g = g @ errors.M_g.T + errors.gyro_bias * k
+        if errors.gyro_gm is not None:
+            g = g + errors.gyro_gm * k
         a = a @ errors.M_a.T + errors.accel_bias * k
     if rng is not None:
         sg, sa = noise_sigmas(cfg, ideal.output, dt)
@@ -156,6 +172,9 @@ def simulate_imu(truth: Truth, cfg: ImuConfig, rng: np.random.Generator,
     """IMU output of a flight: ideal samples, turn-on errors and noise drawn from ``rng``."""
     ideal = ideal_imu(truth, cfg.rate_hz, cfg.output, cfg.sample)
     errors = draw_imu_errors(cfg, rng)
+    if with_errors and cfg.gyro_gm_deg_h > 0:
+        errors.gyro_gm = gauss_markov_drift(ideal.t.size, ideal.dt, np.radians(cfg.gyro_gm_deg_h) / 3600.0,
+                                            cfg.gyro_gm_tau_s, rng)
     if not with_errors:
         zero = ImuErrors(*(np.zeros_like(x) for x in (errors.gyro_bias, errors.accel_bias, errors.gyro_scale,
                                                       errors.accel_scale, errors.gyro_misalignment,

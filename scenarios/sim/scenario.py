@@ -169,6 +169,10 @@ class ImuConfig:
     gyro_bias_deg_h: float = _f(6.0, "turn-on bias, 1 sigma per axis [deg/h]", minimum=0)
     gyro_scale_ppm: float = _f(2000.0, "scale-factor error, 1 sigma per axis", minimum=0)
     gyro_misalignment_mrad: float = _f(2.0, "axis misalignment, 1 sigma per off-diagonal element", minimum=0)
+    gyro_gm_deg_h: float = _f(0.0, "first-order Gauss-Markov gyro drift, stationary 1 sigma per axis [deg/h] "
+                              "(0: none)", minimum=0)
+    gyro_gm_tau_s: float = _f(100.0, "correlation time of the Gauss-Markov gyro drift", minimum=0,
+                              exclusive_min=True)
     accel_noise_mg_rt_hz: float = _f(0.05, "velocity random walk [mg/sqrt(Hz)]", minimum=0)
     accel_bias_mg: float = _f(2.0, "turn-on bias, 1 sigma per axis", minimum=0)
     accel_scale_ppm: float = _f(300.0, "scale-factor error, 1 sigma per axis", minimum=0)
