@@ -456,6 +456,12 @@ class EdgeHeightOptions(_Checks):
         holds the pixel noise only (the height's uncertainty is the filter's, not to be counted
         twice), and ``VectorRecord.dedge_c`` carries the sensitivity ``d e_c / d h_e`` [1/m],
         with ``edge_height_m`` the height fitted at.
+    offset_gate : the flight's limb edge height offset (`vision.limb_offset`: one per camera, the
+        weighted mean over its limb-edge frames of the arc's own height minus the prior's mean)
+        tightens the limb edge's prior to N(mean + offset, offset sigma^2 + limb term^2) when
+        |offset| is within this many of its sigmas (the limb model holds on this camera, up to
+        the offset); else the wide prior stays. 0: never tightened.
+    offset_min_frames : limb-edge frames with an arc's own height a camera needs for its offset.
     """
 
     estimate: bool = True
@@ -467,8 +473,12 @@ class EdgeHeightOptions(_Checks):
     limb_gate: float = 3.0
     cross_check_ratio: float = 3.0
     filter_state: bool = False
+    offset_gate: float = 3.0
+    offset_min_frames: int = 5
 
     def __post_init__(self):
+        self._finite(("offset_gate",))
+        self._ints(("offset_min_frames",), lo=2)
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")
         if not isinstance(self.filter_state, bool):

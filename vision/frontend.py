@@ -235,6 +235,8 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
             if _limb_consistent(res[4], sigma_l, tc) and _edges_agree(res, res_t, tc):
                 out.limb_used, out.limb_shift_m, out.limb_path, out.limb_d_m = lr[7:]
                 out.limb_edge = True
+                out.limb_prior_m, out.limb_prior_sigma_m = tc.limb.height_m, max(sigma_l, tc.edge.limb_prior_sigma_m)
+                out.limb_sigma_m = sigma_l
                 return _earth_out(out, res, uv_l, fit_l)
             out.limb_rejected_m = float(res[4][4])
             if res_t is not None:
@@ -276,6 +278,7 @@ def _earth_out(out: TargetResult, res, uv, fit):
     """`_earth_final`'s return value from `_earth_covariance`'s ``res``; fills ``out``."""
     e_c, P, out.cone_alpha, alpha, ef, inl = res
     out.edge_cov_c, out.edge_from_arc, out.edge_dedge_c = ef[2], ef[3], ef[6]
+    out.edge_data_m, out.edge_data_sigma_m = float(ef[4]), float(ef[5])
     return e_c, P, alpha, ef[:2], uv, inl, fit
 
 

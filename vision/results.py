@@ -95,6 +95,11 @@ class TargetResult:
     edge_cov_c: np.ndarray | None = None  # Earth: (3,) covariance of e_c with the edge height [rad m]
     edge_from_arc: bool = False  # Earth: the arc constrains the edge height (vision.edge_height)
     edge_dedge_c: np.ndarray | None = None  # Earth, filter_state: (3,) d e_c / d h_e [1/m] (VectorRecord.dedge_c)
+    edge_data_m: float = math.nan  # Earth: the arc's own (prior-free) edge height [m] (vision.edge_height)
+    edge_data_sigma_m: float = math.inf  # Earth: its 1-sigma [m]
+    limb_prior_m: float = math.nan  # Earth, limb edge: mean [m] of the height prior the fit used
+    limb_prior_sigma_m: float = math.nan  # Earth, limb edge: that prior's 1-sigma [m]
+    limb_sigma_m: float = math.nan  # Earth, limb edge: the limb model's own height term [m] (vision.limb)
     limb_rejected_m: float = math.nan  # Earth: the limb edge's own height [m] when it disagreed with
     # the limb model (EdgeHeightOptions.limb_gate) and the threshold edge was used instead
     cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the

@@ -89,6 +89,7 @@ class ImagePlan:
     masks: dict = field(default_factory=dict)   #: camera number -> vision.mask.PayloadMask
     targets: tuple = ("earth", "sun")
     workers: int = 0
+    limb_offsets: list = field(default_factory=list)  #: vision.limb_offset.LimbOffset per camera (run_images)
 
 
 def image_plan(flight, targets, *, vision_config=None, vision_rate_hz=None, masks=None, workers=0,
@@ -215,11 +216,24 @@ def attach_priors(plan: ImagePlan, imu, init, inp) -> None:
 
 
 def run_images(plan: ImagePlan, frames_out, progress=None, on_pool_start=None, on_result=None):
-    """Every planned frame through the vision (with the priors attached to its job); returns the
-    vectors (None without frames)."""
+    """Every planned frame through the vision (with the priors attached to its job), then each
+    camera's limb edge height offset learned over the flight and its limb-edge fits re-weighted
+    with it (`vision.limb_offset.refine_limb_height`; the offsets in ``plan.limb_offsets``);
+    returns the vectors (None without frames). ``on_result`` sees the frames before the
+    re-weighting; ``frames_out`` gets them after."""
+    from vision.limb_offset import refine_limb_height
     if not plan.jobs:
         return None
-    return vector_data(run_plan(plan, plan.jobs, frames_out, progress, on_pool_start, on_result))
+    frames: list = []
+    run_plan(plan, plan.jobs, frames, progress, on_pool_start, on_result)
+    fits = [(r, f.limb if r.target == "earth" else None) for f in frames for r in f.records]
+    recs, plan.limb_offsets = refine_limb_height(fits, plan.config.earth.edge)
+    it = iter(recs)
+    for f in frames:
+        f.records = [next(it) for _ in f.records]
+    frames_out.extend(frames)
+    return vector_data([record_row(r, plan.cam_numbers) for f in frames for r in f.records
+                        if r.target in plan.targets])
 
 
 def _targets_only(cfg, targets):

@@ -393,6 +393,7 @@ def _see_images(flight, init, targets, workers, vision_config, vision_rate_hz, m
         hooks.started(start, pre)
     with hooks.in_stage("vision"):
         vectors = S.run_images(plan, frames, hooks.progress, hooks.pool_start, hooks.result)
+        notes += [o.describe() for o in plan.limb_offsets]
         if start.method == "triad" and vectors is not None:
             try:   # TRIAD again on the vectors measured with the attitude prior
                 state, tri = triad(imu, flight.gps, vectors, flight.mounts, w)

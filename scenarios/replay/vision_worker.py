@@ -54,6 +54,7 @@ class FrameOutput:
     reasons: dict        #: target -> why no vector
     overlay: dict        #: target -> {"edges", "inliers", "outliers", "conic", "point"} pixel arrays
     timings: dict        #: stage -> seconds (incl. "decode")
+    limb: object = None  #: vision.limb_offset.LimbEdge of the Earth record when it is a limb-edge fit
 
 
 def _init(cameras: dict, config, masks: dict) -> None:
@@ -102,6 +103,7 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
     """Decode one frame and run the front end on it (in a worker, or here)."""
     from scenarios.flightlog.jpeg import decode_frame
     from vision.frontend import FramePrior, process_frame
+    from vision.limb_offset import limb_edge
     camera = camera if camera is not None else _STATE["cameras"][job.k]
     config = config if config is not None else _STATE["config"]
     mask = mask if mask is not None else _STATE.get("masks", {}).get(job.k)
@@ -124,7 +126,8 @@ def process_one(job: FrameJob, camera=None, config=None, mask=None) -> FrameOutp
         return FrameOutput(job.k, job.t_ns, [], {"frame": str(e)}, {}, {"decode": t_dec})
     tim = dict(res.timings)
     tim["decode"] = t_dec
-    return FrameOutput(job.k, job.t_ns, res.records, {**skipped, **res.reasons}, _overlay(camera, res), tim)
+    return FrameOutput(job.k, job.t_ns, res.records, {**skipped, **res.reasons}, _overlay(camera, res), tim,
+                       limb_edge(res.targets.get("earth")))
 
 
 def sun_out_of_view(config, camera, sun_c):

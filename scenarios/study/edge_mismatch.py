@@ -128,18 +128,27 @@ def _edge_truth(tr, cam, r, shift_sun_m: float) -> float:
 
 def run_case(case: Case, frames, cam, mask, config, cache: Path) -> list[FrameOutcome]:
     """The front end (``config``, the full prior the replay gives: truth position and attitude,
-    predicted Sun) on the frames of ``case``."""
+    predicted Sun) on the frames of ``case``, with each camera's limb edge height offset learned
+    over the frames as the replay does (`vision.limb_offset.refine_limb_height`)."""
     from nav import ephemeris
     from scenarios.flightlog.jpeg import decode_frame
     from vision.frontend import FramePrior, process_frame
+    from vision.limb_offset import limb_edge, refine_limb_height
 
-    out = []
+    runs = []
     rng = np.random.default_rng(0)
     for t_s, k, r in frames:
         jpg, e_true = _render(case, cam, r, k, cache)
         prior = FramePrior(r.x_e, r.R_ec, sun_c=r.R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e))
-        res = process_frame(decode_frame(jpg), cam, config, mask=mask, prior=prior, rng=rng)
+        runs.append((t_s, k, r, e_true, process_frame(decode_frame(jpg), cam, config, mask=mask, prior=prior,
+                                                      rng=rng, camera_id=k)))
+    fits = [(res.record("earth"), limb_edge(res.targets.get("earth"))) for *_, res in runs
+            if res.record("earth") is not None]
+    refined = dict(zip([id(f[0]) for f in fits], refine_limb_height(fits, config.earth.edge)[0]))
+    out = []
+    for t_s, k, r, e_true, res in runs:
         rec = res.record("earth")
+        rec = refined.get(id(rec), rec)
         if rec is None:
             out.append(FrameOutcome(t_s, k, False))
             continue

@@ -30,6 +30,7 @@ from scenarios.study.edge_mismatch import NOMINAL_EDGE_M
 from vision import mask as vmask
 from vision.camera import project
 from vision.frontend import FramePrior, process_frame
+from vision.limb_offset import limb_edge, refine_limb_height
 
 from tests.benchmarks.timing import median_ms
 from tests.poses import ellipsoid_limb_rays
@@ -126,13 +127,22 @@ def _evaluate(look, times, fl, recs, cfg, mask):
     out = dict(earth_err=[], earth_sig=[], earth_sun_in_view=[], sun_err=[], sun_sig=[], false_earth=0, no_horizon=0, false_sun=0,
                no_sun=0, miss=0, horizon=0, base_err=[], frames=0)
     rng = np.random.default_rng(0)
+    runs = []
     for r, jpg, tr in _frames(look, times, fl, recs):
         img = decode_frame(jpg)    # the replay's decoder (scenarios/flightlog/jpeg.py)
         R_ec = _pose(look, r)
-        res = process_frame(img, cam, cfg, mask=mask, prior=_full_prior(r, R_ec), rng=rng, baseline=True)
+        res = process_frame(img, cam, cfg, mask=mask, prior=_full_prior(r, R_ec), rng=rng, baseline=True,
+                            camera_id=r.camera_index)
+        runs.append((r, tr, R_ec, res))
+    # the replay's second step: each camera's limb edge height offset over the flight
+    fits = [(res.record("earth"), limb_edge(res.targets.get("earth"))) for *_, res in runs
+            if res.record("earth") is not None]
+    refined = dict(zip([id(f[0]) for f in fits], refine_limb_height(fits, cfg.earth.edge)[0]))
+    for r, tr, R_ec, res in runs:
         out["frames"] += 1
         frac = _limb_fraction(cam, mask, r.x_e, R_ec, d)
         rec = res.record("earth")
+        rec = refined.get(id(rec), rec)
         if frac >= 0.10:
             out["horizon"] += 1
             if rec is None:
