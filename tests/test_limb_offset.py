@@ -79,15 +79,18 @@ def test_not_tighter_or_other_camera_leaves_the_record():
     assert apply_limb_offset(rec, ed, LimbOffset(1, 0.0, 600.0, 40, 0.1, False)) is rec
 
 
-@pytest.mark.parametrize("bias_m, applied", [(0.0, True), (-15e3, False), (13e3, False)])
-def test_offset_is_the_weighted_mean_and_gates_a_mismatched_limb(bias_m, applied):
+@pytest.mark.parametrize("bias_m, n, applied", [(0.0, 150, True), (-15e3, 150, False), (13e3, 150, False),
+                                                (0.0, 40, False), (-12e3, 6, False)])
+def test_offset_is_the_weighted_mean_and_gates_a_mismatched_limb(bias_m, n, applied):
     """The offset is the inverse-variance mean of (arc's own height - prior mean) (closed form,
-    np.average) with sigma 1/sqrt(sum w) (scatter below the sigmas); 40 frames of 10 km arcs give
-    sigma ~1.6 km: a 13-15 km offset (the mismatched renders) is > 3 sigma away from 0, a matched
-    limb (offset 0, drawn scatter 0.5 km: chi2/dof << 1 as on rendered frames) is inside."""
+    np.average) with sigma 1/sqrt(sum w) (scatter below the sigmas); 150 frames of 10 km arcs give
+    sigma ~0.8 km: a 13-15 km offset (the mismatched renders) is > 3 sigma away from 0, a matched
+    limb (offset 0, drawn scatter 0.5 km: chi2/dof << 1 as on rendered frames) is inside. With 40
+    frames (sigma ~1.6 km, 3 sigma 4.8 km > offset_resolution_m) or 6 (a -12 km offset within 3
+    sigma of 0) the flight cannot vouch for the model: nothing is applied."""
     rng = np.random.default_rng(3)
-    s = rng.uniform(9e3, 11e3, 40)
-    d = bias_m + rng.normal(size=40) * 500.0
+    s = rng.uniform(9e3, 11e3, n)
+    d = bias_m + rng.normal(size=n) * 500.0
     fits = [(_record(np.array([0.0, 0.0, 18.3e3 + di]), np.eye(3)), LimbEdge(18.3e3, 20e3, 300.0, 18.3e3 + di, si,
              np.zeros(3))) for di, si in zip(d, s)]
     fits.append((_record(np.zeros(3), np.eye(3), camera=2), None))
@@ -96,6 +99,6 @@ def test_offset_is_the_weighted_mean_and_gates_a_mismatched_limb(bias_m, applied
     o = offs[0]
     assert o.offset_m == pytest.approx(np.average(d, weights=1 / s**2), rel=1e-12)
     assert o.sigma_m == pytest.approx(1 / math.sqrt(np.sum(1 / s**2)), rel=1e-12)
-    assert o.frames == 40 and o.applied is applied
+    assert o.frames == n and o.applied is applied
     assert offs[1].frames == 0 and not offs[1].applied and math.isnan(offs[1].offset_m)
     assert ("applied" if applied else "not applied") in o.describe()

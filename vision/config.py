@@ -458,10 +458,15 @@ class EdgeHeightOptions(_Checks):
         with ``edge_height_m`` the height fitted at.
     offset_gate : the flight's limb edge height offset (`vision.limb_offset`: one per camera, the
         weighted mean over its limb-edge frames of the arc's own height minus the prior's mean)
-        tightens the limb edge's prior to N(mean + offset, offset sigma^2 + limb term^2) when
+        tightens the limb edge's prior to N(mean, offset sigma^2 + limb term^2) when
         |offset| is within this many of its sigmas (the limb model holds on this camera, up to
         the offset); else the wide prior stays. 0: never tightened.
     offset_min_frames : limb-edge frames with an arc's own height a camera needs for its offset.
+    offset_resolution_m : the offset tightens the prior only when ``offset_gate`` of its sigmas
+        are at most this [m]: the flight must be able to see a disagreement of this size between
+        its arcs and the limb model (at 0.04 deg of nadir per km on partial fisheye arcs, 3 km is
+        0.12 deg). A few frames give sigmas of 4-8 km, within which mismatched atmospheres of
+        10-20 km pass the gate; a long flight's hundreds of frames give well under 1 km.
     """
 
     estimate: bool = True
@@ -475,9 +480,10 @@ class EdgeHeightOptions(_Checks):
     filter_state: bool = False
     offset_gate: float = 3.0
     offset_min_frames: int = 5
+    offset_resolution_m: float = 3000.0
 
     def __post_init__(self):
-        self._finite(("offset_gate",))
+        self._finite(("offset_gate", "offset_resolution_m"))
         self._ints(("offset_min_frames",), lo=2)
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")

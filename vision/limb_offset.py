@@ -13,9 +13,11 @@ the camera's offset is the inverse-variance mean
     sigma_b^2 = max(1, chi2 / (n - 1)) / sum(w_i),  chi2 = sum(w_i (h_i - m_i - b)^2),
 
 (frames independent; the scatter inflates sigma_b when it exceeds the sigmas). Where
-``|b| <= offset_gate * sigma_b`` the limb model holds up to the offset and every limb-edge
-fit of the camera takes the prior N(m_i + b, sigma_b^2 + sigma_l,i^2) (sigma_l the model's own
-limb term) instead of the wide one; elsewhere the wide prior stays (the edges of a camera whose
+``|b| <= offset_gate * sigma_b <= offset_resolution_m`` the flight shows the limb model holding
+and every limb-edge fit of the camera takes the prior N(m_i, sigma_b^2 + sigma_l,i^2) (sigma_l
+the model's own limb term; centred on the model, not on m_i + b: on rendered frames the arcs' own
+heights sit ~1 km low, and a prior moved by b moves every nadir by ~0.04 deg) instead of the wide
+one; elsewhere the wide prior stays (the edges of a camera whose
 limb model fails do not follow one shifted height).
 
 The fits are not repeated: the joint direction and height fit (`vision.edge_height`) is a
@@ -118,7 +120,7 @@ def estimate_limb_offset(fits, camera: int, opts: EdgeHeightOptions) -> LimbOffs
     b = float(np.sum(w * d) / np.sum(w))
     chi2_dof = float(np.sum(w * (d - b) ** 2)) / (n - 1)
     sb = math.sqrt(max(1.0, chi2_dof) / float(np.sum(w)))
-    applied = opts.offset_gate > 0 and abs(b) <= opts.offset_gate * sb
+    applied = 0 < opts.offset_gate * sb <= opts.offset_resolution_m and abs(b) <= opts.offset_gate * sb
     return LimbOffset(camera, b, sb, n, chi2_dof, applied)
 
 
