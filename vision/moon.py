@@ -74,7 +74,7 @@ from vision.image_geometry import fast_pixel_angle, gate_search_rows, max_pixel_
 from vision.nadir import ConeFit, conic_type, within_cone
 from vision.ransac import ransac_cone
 from vision.results import CandidateResult, TargetResult, VectorRecord
-from vision.scoring import candidate_rng
+from vision.scoring import candidate_rng, gate_reason
 
 __all__ = ["expected_alpha", "seed_threshold", "moon_detection", "outward_normals", "size_gate", "trace_candidate",
            "sun_image_direction", "lit_side", "lit_limb_start", "fit_lit_limb", "moon_covariance",
@@ -341,11 +341,7 @@ def _accept(fit: ConeFit, known: bool, alpha: float, pa: float, predicted, tc: T
     if not known and abs(fit.alpha - alpha) > tol:
         return (f"fitted radius {math.degrees(fit.alpha):.3f} deg, expected {math.degrees(alpha):.3f} "
                 f"+- {math.degrees(tol):.3f} deg (radius_tol)")
-    if predicted is not None:
-        off = math.degrees(math.acos(max(-1.0, min(1.0, float(fit.e_c @ predicted)))))
-        if off > tc.gate_deg:
-            return f"{off:.1f} deg from the predicted direction > gate_deg {tc.gate_deg:g}"
-    return ""
+    return gate_reason(fit.e_c, predicted, tc.gate_deg)
 
 
 def _search(a, camera, mask, tc: TargetConfig, hist, t_seed: float, alpha: float, predicted):

@@ -20,7 +20,7 @@ from vision.probes import disc_check, side_score
 from vision.ransac import ransac_cone
 from vision.results import CandidateResult
 
-__all__ = ["candidate_rng", "score_candidate"]
+__all__ = ["candidate_rng", "gate_reason", "score_candidate"]
 
 
 @dataclass(frozen=True)
@@ -133,6 +133,15 @@ def _consensus(H, alpha, thr, tc: TargetConfig, frame_seed: int, cand: Candidate
     return rr
 
 
+def gate_reason(e_c, predicted, gate_deg: float) -> str:
+    """"" when ``predicted`` is None or the unit vector ``e_c`` lies within ``gate_deg`` of it,
+    else the reason."""
+    if predicted is None:
+        return ""
+    off = math.degrees(math.acos(max(-1.0, min(1.0, float(e_c @ predicted)))))
+    return f"{off:.1f} deg from the predicted direction > gate_deg {gate_deg:g}" if off > gate_deg else ""
+
+
 def _disc_reason(fit: ConeFit, image, camera, mask, det, tc: TargetConfig, predicted) -> str:
     """Sun/Moon acceptance: apparent radius in [alpha_min_deg, alpha_max_deg], within
     ``gate_deg`` of the predicted direction, a disc bright inside and dark around
@@ -140,10 +149,9 @@ def _disc_reason(fit: ConeFit, image, camera, mask, det, tc: TargetConfig, predi
     if not (math.radians(tc.alpha_min_deg) <= fit.alpha <= math.radians(tc.alpha_max_deg)):
         return (f"apparent radius {math.degrees(fit.alpha):.3g} deg outside "
                 f"[{tc.alpha_min_deg:g}, {tc.alpha_max_deg:g}] deg")
-    if predicted is not None:
-        off = math.degrees(math.acos(max(-1.0, min(1.0, float(fit.e_c @ predicted)))))
-        if off > tc.gate_deg:
-            return f"{off:.1f} deg from the predicted direction > gate_deg {tc.gate_deg:g} (flare ghost?)"
+    gate = gate_reason(fit.e_c, predicted, tc.gate_deg)
+    if gate:
+        return gate + " (flare ghost?)"
     return disc_check(image, camera, mask, det.threshold, fit.e_c, fit.alpha, tc.side_check.step_px)
 
 
