@@ -54,6 +54,8 @@ vector share a time stamp, and the reject counts by reason.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
@@ -107,7 +109,9 @@ class VectorData:
     height [m] and ``dedge_c`` (N, 3) the vector's sensitivity to the true edge height, ``d e_c /
     d h_e`` [1/m] (NaN where unknown): the vector measures ``e_c(h_e) = e_c + dedge_c (h_e -
     edge_ref_m)``, the filter's ``h_e`` state (``Tuning.edge_height``) takes it from there, and
-    ``P_c`` must then hold the pixel noise only (not the height's uncertainty)."""
+    ``P_c`` must then hold the pixel noise only (not the height's uncertainty). With them,
+    ``edge_data_m`` (N,) the arc's own edge height [m] and ``edge_data_sigma_m`` (N,) its 1-sigma
+    (inf or NaN: none) measure ``h_e`` directly (`vision.edge_height.conditional_on_height`)."""
     t_ns: np.ndarray
     camera: np.ndarray
     target: np.ndarray
@@ -115,6 +119,8 @@ class VectorData:
     P_c: np.ndarray
     dedge_c: np.ndarray | None = None
     edge_ref_m: np.ndarray | None = None
+    edge_data_m: np.ndarray | None = None
+    edge_data_sigma_m: np.ndarray | None = None
 
 
 @dataclass
@@ -290,8 +296,7 @@ def _corrected_stamps(vectors: VectorData | None, clk0: np.ndarray) -> VectorDat
     known = (cam_idx >= 0) & (cam_idx < clk0.size)
     shift = np.zeros(cam_idx.size, dtype=np.int64)
     shift[known] = np.round(clk0[cam_idx[known].astype(int)] * NS).astype(np.int64)
-    return VectorData(np.asarray(vectors.t_ns, dtype=np.int64) - shift, vectors.camera, vectors.target,
-                      vectors.e_c, vectors.P_c, vectors.dedge_c, vectors.edge_ref_m)
+    return dataclasses.replace(vectors, t_ns=np.asarray(vectors.t_ns, dtype=np.int64) - shift)
 
 
 def initial_edge_heights(vectors: VectorData | None, n_cam: int) -> np.ndarray:

@@ -57,7 +57,7 @@ NS = 1_000_000_000
 @dataclass
 class Innovation:
     t_ns: int
-    kind: str          #: "gps_pos", "gps_vel", "hor", "sun", "moon"
+    kind: str          #: "gps_pos", "gps_vel", "hor", "sun", "moon", "edge" (a camera's edge height)
     camera: int        #: -1 for GPS
     s: np.ndarray      #: innovation (tangent-plane 2-vector for camera vectors)
     S: np.ndarray      #: predicted innovation covariance
@@ -338,6 +338,10 @@ class CameraVectors:
         self.edge = None
         if dedge is not None and ref is not None and any(layout.has(layout.edge_name(c)) for c in range(n_cam)):
             self.edge = (np.asarray(dedge, float).reshape(-1, 3), np.asarray(ref, float).reshape(-1))
+        data, data_sd = getattr(vec, "edge_data_m", None), getattr(vec, "edge_data_sigma_m", None)
+        self.edge_data = None
+        if self.edge is not None and data is not None and data_sd is not None:
+            self.edge_data = (np.asarray(data, float).reshape(-1), np.asarray(data_sd, float).reshape(-1))
         self.body_pos = {}
         tg = np.asarray(vec.target)
         for name, fn in (("sun", sun_position_e), ("moon", moon_position_e)):
@@ -416,6 +420,24 @@ class CameraVectors:
         stack.s[o:o + 2] = T.T @ (e_c - pred)
         stack.R[o:o + 2, o:o + 2] = T.T @ R3 @ T
         stack.add(t_m, target, cam, o, 2, None)
+        if edge is not None and self.edge_data is not None:
+            self._fill_height(j, t_m, cam, edge[0], st, stack)
+
+    def _fill_height(self, j: int, t_m: int, cam: int, col: int, st, stack: EpochStack) -> None:
+        """The arc's own edge height (``VectorData.edge_data_m``, 1-sigma ``edge_data_sigma_m``)
+        as a measurement of the camera's ``h_e`` (state index ``col``): a 1-row block of kind
+        ``"edge"``, independent of the direction given the height (the two factors of the arc's
+        joint fit, `vision.edge_height.conditional_on_height`). None where the arc does not
+        constrain the height (sigma not finite)."""
+        h, sd = self.edge_data[0][j], self.edge_data[1][j]
+        if not (np.isfinite(h) and np.isfinite(sd) and sd > 0):
+            return
+        o = stack.reserve(1)
+        stack.H[o] = 0.0
+        stack.H[o, col] = 1.0
+        stack.s[o] = h - st.edge_hat[cam]
+        stack.R[o, o] = sd * sd
+        stack.add(t_m, "edge", cam, o, 1, None)
 
     def _edge_column(self, j: int, cam: int, st):
         """``(state index of h_e, dedge_c (h_hat - edge_ref_m))`` for vector j, or None when the

@@ -58,7 +58,7 @@ from vision.covariance import _ar1_apply_2d
 from vision.nadir import _mean_sq_residual
 from vision.oblate import LimbModel
 
-__all__ = ["EdgeHeightFit", "fit_edge_height"]
+__all__ = ["EdgeHeightFit", "fit_edge_height", "conditional_on_height"]
 
 
 @dataclass(frozen=True)
@@ -249,6 +249,27 @@ def fit_edge_height(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, e
                          P_c=0.5 * (P_c + P_c.T), cov_c=A @ C[:2, 2] * prior_sigma_m,
                          from_arc=var_h < constrained_ratio * prior_sigma_m**2,
                          residual=float(_mean_sq_residual(Hc, e, alpha)))
+
+
+def conditional_on_height(P_c: np.ndarray, cov_c: np.ndarray, sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The direction given the edge height, from the joint (direction, height) fit: the regression
+    of ``e_c`` on ``h``, ``e_c(h) = e_c + b (h - h_fit)`` with ``b = cov(e_c, h) / sigma_h^2``
+    [rad/m] (the fitted direction's move when the fit assumes a height ``h``), and its covariance
+    ``P_c - cov cov^T / sigma_h^2`` [rad^2].
+
+    The prior on the height enters the posterior through ``h`` alone, so this conditional is the
+    arc's own (prior-free) one. A true edge at ``h`` puts the true direction at ``e_c + b (h -
+    h_fit)``, so the fitted ``e_c`` measures ``e_true - b (h - h_fit)``: the sensitivity ``d e_c /
+    d h_e`` a filter that estimates the height uses is ``g = -b``, with this covariance (the
+    height's uncertainty not counted again), and the arc's own height
+    (``EdgeHeightFit.data_height_m``, independent of this conditional) measures the height.
+    Returns ``(P, g)``."""
+    cov = np.asarray(cov_c, dtype=float)
+    if not (math.isfinite(sigma_m) and sigma_m > 0.0):
+        raise ValueError(f"sigma_m = {sigma_m}; expected the height's finite 1-sigma > 0 [m]")
+    b = cov / sigma_m**2
+    P = np.asarray(P_c, dtype=float) - np.outer(cov, b)
+    return 0.5 * (P + P.T), -b
 
 
 def fit_edge_reselect(model: LimbModel, d0: float, H: np.ndarray, J: np.ndarray, inliers: np.ndarray,

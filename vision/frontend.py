@@ -65,7 +65,7 @@ from vision.candidates import detect
 from vision.config import (TARGETS, FramePrior, TargetConfig, VisionConfig, default_config,
                            resolve_search_lines)
 from vision.covariance import direction_covariance, largest_eigenvalue
-from vision.edge_height import fit_edge_reselect
+from vision.edge_height import conditional_on_height, fit_edge_reselect
 from vision.fitting import alpha_sensitivity, fit_cone, median, reselect_inliers, subsample
 from vision.image_geometry import conic_polyline, fast_pixel_angle, gate_search_rows
 from vision.limb_refit import limb_refit, tilt_corrected_attitude
@@ -135,7 +135,7 @@ def _refit_winner(out: TargetResult, win, cand, camera, tc: TargetConfig, model)
         return None
     if model is not None:
         fit = fit_cone(H[inl], fit.alpha, fit.e_c if win.mirrored else None)
-        if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not tc.edge.filter_state:
+        if tc.edge.estimate and tc.atmosphere_sigma_m > 0:
             fit, inl = _edge_inliers(model, fit, H, J, inl, tc, step, thr, max(min_used, 20))
     else:
         fit, inl, _ = reselect_inliers(H, direction_and_radius(H[inl]), inl, thr,
@@ -167,7 +167,7 @@ def _edge_inliers(model, fit, H, J, inl, tc: TargetConfig, step: float, thr, min
 
 
 def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: float, sig_p: float, d0: float,
-                      thr: float, along_m: float, prior_m: float):
+                      thr: float, along_m: float, prior_m: float, state: bool = False):
     """Earth: (e_c, P_c, cone alpha, fit alpha, edge, inliers) of the final fit at edge height
     ``d0`` [m] (the height ``model`` is built at). With ``edge.estimate`` the height is fitted
     with the direction, the prior N(d0, sig_p^2) as a pseudo-measurement, the inliers re-selected
@@ -176,31 +176,30 @@ def _earth_covariance(model, fit, H, rays_c, J, inl, tc: TargetConfig, L_eff: fl
     pixel noise plus ``sig_p^2 g g^T``, ``g = de/dd`` = de/dalpha * dalpha/dd
     (`alpha_sensitivity`, `LimbModel.alpha_rate`) mapped into the camera. ``edge`` = (height
     [m], sigma [m], (3,) covariance with e_c [rad m], from the arc, the arc's own height [m] and its
-    sigma [m], and with ``edge.filter_state`` the sensitivity ``d e_c / d h_e = -g`` (else None),
-    P_c then without the height term); ``along_m``: the edge's height variation along the limb
+    sigma [m], and with ``state`` (the filter estimates this edge's height) the pair (``d e_c /
+    d h_e``, covariance of e_c given the height) (`vision.edge_height.conditional_on_height`; the
+    fixed-height fit: (-g, the pixel-noise covariance)), else None); ``along_m``: the edge's height variation along the limb
     [m]; ``prior_m``: the prior's mean [m] (``d0`` when the height is not estimated). The cone
     alpha is the median angle of the inlier rays about e_c (the visible horizon's cone, for its
     conic type)."""
-    state = tc.edge.filter_state
-    if tc.edge.estimate and sig_p > 0 and not state:
+    if tc.edge.estimate and sig_p > 0:
         ef, inl2 = fit_edge_reselect(model, d0, H, J, inl, fit.e_c, prior_m, sig_p, tc.fit.R_px2, L_eff, thr,
                                      max(20, int(inl.sum()) // 2), tc.edge.constrained_ratio,
                                      along_sigma_m=along_m, along_L=L_eff * tc.edge.along_L_px / tc.fit.L_px)
         if ef is not None:
             e_c = model.to_camera(ef.e_fit)
-            edge = (ef.height_m, ef.sigma_m, ef.cov_c, ef.from_arc, ef.data_height_m, ef.data_sigma_m, None)
+            given_h = conditional_on_height(ef.P_c, ef.cov_c, ef.sigma_m)[::-1] if state else None
+            edge = (ef.height_m, ef.sigma_m, ef.cov_c, ef.from_arc, ef.data_height_m, ef.data_sigma_m, given_h)
             return e_c, ef.P_c, median(angle_residuals(rays_c[inl2], e_c, 0.0)), ef.alpha, edge, inl2
     e_c = model.to_camera(fit.e_c)
-    P = direction_covariance(rays_c[inl], J[inl], e_c, tc.fit.R_px2, L_eff, method="constrained").P_c
+    P_px = direction_covariance(rays_c[inl], J[inl], e_c, tc.fit.R_px2, L_eff, method="constrained").P_c
     g = np.zeros(3)
     if sig_p > 0 or state:
         g_fit = alpha_sensitivity(H[inl], fit.e_c, fit.alpha) * model.alpha_rate
         g = model.to_camera(fit.e_c + 1e-3 * g_fit) - e_c
         g /= 1e-3
-        if not state:
-            P = P + sig_p**2 * np.outer(g, g)
-    edge = (d0, sig_p, sig_p**2 * g, False, math.nan, math.inf, -g if state else None)
-    return e_c, P, median(angle_residuals(rays_c[inl], e_c, 0.0)), fit.alpha, edge, inl
+    edge = (d0, sig_p, sig_p**2 * g, False, math.nan, math.inf, (-g, P_px) if state else None)
+    return e_c, P_px + sig_p**2 * np.outer(g, g), median(angle_residuals(rays_c[inl], e_c, 0.0)), fit.alpha, edge, inl
 
 
 def _limb_consistent(ef, sigma_l: float, tc: TargetConfig) -> bool:
@@ -221,14 +220,15 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
     uv, rays_c, J, pa, H, fit, inl, step = w
     t0 = time.perf_counter()
     pa_med = median(pa)
-    if limb is not None and tc.limb.fraction > 0 and not tc.edge.filter_state:
+    if limb is not None and tc.limb.fraction > 0:
         lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
         timings["earth.limb"] = time.perf_counter() - t0
         if lr is not None:
             model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
-                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m, tc.limb.height_m)
+                                    tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m, tc.limb.height_m,
+                                    tc.edge.filter_state)
             res_t = None
             if _limb_consistent(res[4], sigma_l, tc) and _limb_checked(res[4], max(sigma_l, tc.edge.limb_prior_sigma_m), tc):
                 res_t = _threshold_covariance(model, fit, w, tc, L_eff, pa_med)
@@ -248,7 +248,8 @@ def _threshold_covariance(model, fit, w, tc: TargetConfig, L_eff: float, pa_med:
     """`_earth_covariance` of the threshold edge (the refit ``w``), prior N(atmosphere_m, atmosphere_sigma_m^2)."""
     _, rays_c, J, _, H, _, inl, _ = w
     return _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
-                             tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m)
+                             tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m,
+                             tc.edge.filter_state and not tc.limb.fraction > 0)
 
 
 def _limb_checked(ef, sigma_p: float, tc: TargetConfig) -> bool:
@@ -277,7 +278,9 @@ def _edges_agree(res_l, res_t, tc: TargetConfig) -> bool:
 def _earth_out(out: TargetResult, res, uv, fit):
     """`_earth_final`'s return value from `_earth_covariance`'s ``res``; fills ``out``."""
     e_c, P, out.cone_alpha, alpha, ef, inl = res
-    out.edge_cov_c, out.edge_from_arc, out.edge_dedge_c = ef[2], ef[3], ef[6]
+    out.edge_cov_c, out.edge_from_arc = ef[2], ef[3]
+    if ef[6] is not None:    # the filter estimates the height: the direction given it
+        out.edge_dedge_c, P = ef[6]
     out.edge_data_m, out.edge_data_sigma_m = float(ef[4]), float(ef[5])
     return e_c, P, alpha, ef[:2], uv, inl, fit
 
@@ -345,10 +348,19 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     out.record = VectorRecord(int(ids[0]), int(ids[1]), name, e_c, P, lam * np.eye(3), float(fit.residual),
                               int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, alpha,
                               model.kind if model is not None else "", float(edge[0]), float(edge[1]),
-                              out.edge_dedge_c if model is not None else None)
+                              out.edge_dedge_c if model is not None else None,
+                              *_edge_data(out, model))
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out
+
+
+def _edge_data(out: TargetResult, model) -> tuple:
+    """(edge_data_m, edge_data_sigma_m) of the record: the arc's own edge height and its sigma
+    where the filter estimates the height (``dedge_c`` set), else NaN."""
+    if model is None or out.edge_dedge_c is None:
+        return math.nan, math.nan
+    return float(out.edge_data_m), float(out.edge_data_sigma_m)
 
 
 def model_height_m(tc: TargetConfig) -> float:
@@ -356,7 +368,7 @@ def model_height_m(tc: TargetConfig) -> float:
     cone and the joint fit of the height starts there (``edge.start_m`` when the height is
     estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is, as with
     ``edge.filter_state``)."""
-    if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m) and not tc.edge.filter_state:
+    if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m):
         return tc.edge.start_m
     return tc.atmosphere_m
 

@@ -32,7 +32,11 @@ class VectorRecord:
         (`vision.edge_height`); NaN for the Sun/Moon.
     dedge_c : Earth with ``EdgeHeightOptions.filter_state``: (3,) ``d e_c / d h_e`` [1/m], how the
         vector moves when the true edge is higher than ``edge_height_m`` (the filter's edge
-        height column); None otherwise.
+        height column); None otherwise. ``e_c`` and ``P_c`` are then the direction given the
+        height ``edge_height_m`` and its covariance (`vision.edge_height.conditional_on_height`).
+    edge_data_m, edge_data_sigma_m : Earth with ``EdgeHeightOptions.filter_state``: the arc's own
+        (prior-free) edge height [m] and its 1-sigma [m] (inf where the arc cannot separate the
+        height from the tilt), the filter's measurement of the height; NaN otherwise.
     """
 
     t_ns: int
@@ -50,6 +54,8 @@ class VectorRecord:
     edge_height_m: float = math.nan
     edge_height_sigma_m: float = math.nan
     dedge_c: np.ndarray | None = None
+    edge_data_m: float = math.nan
+    edge_data_sigma_m: float = math.nan
 
     @property
     def sigma_deg(self) -> float:

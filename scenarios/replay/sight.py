@@ -14,6 +14,7 @@ INS from the initial state then gives every frame its attitude prior (:func:`att
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,9 +36,10 @@ TRIAD_SEARCH_BATCH = 16
 
 
 def vector_data(rows) -> VectorData | None:
-    """Rows ``(t_ns, camera index, target, e_c, P_c[, dedge_c, edge_ref_m])`` -> VectorData in
-    (time, camera, target) order (with ``dedge_c`` and ``edge_ref_m`` when a row has a
-    sensitivity, NaN for the others); None without rows."""
+    """Rows ``(t_ns, camera index, target, e_c, P_c[, dedge_c, edge_ref_m[, edge_data_m,
+    edge_data_sigma_m]])`` -> VectorData in (time, camera, target) order (with ``dedge_c``,
+    ``edge_ref_m`` and the arc's own height and sigma when a row has a sensitivity, NaN for the
+    others); None without rows."""
     if not rows:
         return None
     rows.sort(key=lambda r: (r[0], r[1], r[2]))
@@ -47,15 +49,21 @@ def vector_data(rows) -> VectorData | None:
     if any(len(r) > 5 and r[5] is not None for r in rows):
         vd.dedge_c = np.array([r[5] if len(r) > 5 and r[5] is not None else np.full(3, np.nan) for r in rows], float)
         vd.edge_ref_m = np.array([r[6] if len(r) > 5 and r[5] is not None else np.nan for r in rows], float)
+        vd.edge_data_m = np.array([r[7] if len(r) > 8 and r[5] is not None else np.nan for r in rows], float)
+        vd.edge_data_sigma_m = np.array([r[8] if len(r) > 8 and r[5] is not None else np.nan for r in rows], float)
     return vd
 
 
 def record_row(r, cam_numbers) -> tuple:
     """A front end's VectorRecord as a row of :func:`vector_data` (its edge-height sensitivity,
-    `vision.results.VectorRecord.dedge_c`, with the height fitted at, where it has one)."""
+    `vision.results.VectorRecord.dedge_c`, with the height fitted at and the arc's own height and
+    sigma, where it has one)."""
     row = (r.t_ns, cam_numbers.index(r.camera), NAV_TARGET[r.target], r.e_c, r.P_c)
     dedge = getattr(r, "dedge_c", None)
-    return row if dedge is None else row + (np.asarray(dedge, float), float(r.edge_height_m))
+    if dedge is None:
+        return row
+    return row + (np.asarray(dedge, float), float(r.edge_height_m), float(getattr(r, "edge_data_m", math.nan)),
+                  float(getattr(r, "edge_data_sigma_m", math.nan)))
 
 
 def frame_vectors(frames, cam_numbers) -> VectorData | None:
@@ -226,11 +234,12 @@ def run_images(plan: ImagePlan, frames_out, progress=None, on_pool_start=None, o
         return None
     frames: list = []
     run_plan(plan, plan.jobs, frames, progress, on_pool_start, on_result)
-    fits = [(r, f.limb if r.target == "earth" else None) for f in frames for r in f.records]
-    recs, plan.limb_offsets = refine_limb_height(fits, plan.config.earth.edge)
-    it = iter(recs)
-    for f in frames:
-        f.records = [next(it) for _ in f.records]
+    if not plan.config.earth.edge.filter_state:     # else the filter's h_e states learn the edge height
+        fits = [(r, f.limb if r.target == "earth" else None) for f in frames for r in f.records]
+        recs, plan.limb_offsets = refine_limb_height(fits, plan.config.earth.edge)
+        it = iter(recs)
+        for f in frames:
+            f.records = [next(it) for _ in f.records]
     frames_out.extend(frames)
     return vector_data([record_row(r, plan.cam_numbers) for f in frames for r in f.records
                         if r.target in plan.targets])

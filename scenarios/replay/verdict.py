@@ -30,7 +30,7 @@ import numpy as np
 from nav.schmidt import chi2_gate
 
 NS = 1_000_000_000
-DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
+DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2, "edge": 1}
 GPS_KINDS = ("gps_pos", "gps_vel")
 #: rejection reasons of rows that hold no measurement (NaN: a receiver's "no fix" row, a frame
 #: without a vector): counted as missing, not as offered and rejected; their time is a gap

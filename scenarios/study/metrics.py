@@ -24,7 +24,7 @@ from scipy.stats import chi2
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
 
 GROUPS = {"pos": ("dx", 1.0, "m"), "vel": ("dv", 1.0, "m/s"), "att": ("psi", np.degrees(1.0), "deg")}
-NIS_DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2}
+NIS_DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2, "edge": 1}
 CONVERGED_3SIGMA_DEG = 0.5  #: misalignment "converged" once its largest 3-sigma axis stays below this
 
 
