@@ -111,7 +111,9 @@ class VectorData:
     edge_ref_m)``, the filter's ``h_e`` state (``Tuning.edge_height``) takes it from there, and
     ``P_c`` must then hold the pixel noise only (not the height's uncertainty). With them,
     ``edge_data_m`` (N,) the arc's own edge height [m] and ``edge_data_sigma_m`` (N,) its 1-sigma
-    (inf or NaN: none) measure ``h_e`` directly (`vision.edge_height.conditional_on_height`)."""
+    (inf or NaN: none) measure ``h_e`` directly (`vision.edge_height.conditional_on_height`);
+    ``edge_ref_sigma_m`` (N,) the 1-sigma of ``edge_ref_m`` the vision had (the covariance without
+    the state is ``P_c + edge_ref_sigma_m^2 dedge_c dedge_c^T``; logs keep it)."""
     t_ns: np.ndarray
     camera: np.ndarray
     target: np.ndarray
@@ -121,6 +123,7 @@ class VectorData:
     edge_ref_m: np.ndarray | None = None
     edge_data_m: np.ndarray | None = None
     edge_data_sigma_m: np.ndarray | None = None
+    edge_ref_sigma_m: np.ndarray | None = None
 
 
 @dataclass

@@ -140,7 +140,13 @@ MSG_TEXTS: dict[str, str] = {
         "uint32 pixel_count  # edge pixels used\n"
         "uint32 inlier_count\n"
         "string conic_type  # \"ellipse\", \"hyperbola\" or \"\"\n"
-        "float64 alpha  # rad, apparent angular radius of the body\n"),
+        "float64 alpha  # rad, apparent angular radius of the body\n"
+        "float64[3] edge_sensitivity  # 1/m, d vector / d edge height (Earth, the height estimated by the filter); NaN: none\n"
+        "float64 edge_height  # m, the Earth edge height the vector was fitted at; NaN: none\n"
+        "float64 edge_height_sigma  # m, its 1-sigma (covariance excludes it where edge_sensitivity is set)\n"
+        "float64 edge_height_arc  # m, the arc's own (prior-free) edge height; NaN: none\n"
+        "float64 edge_height_arc_sigma  # m, its 1-sigma; inf or NaN: none\n"
+        "uint16 SCHEMA_VERSION=2\n"),
     f"{PKG}/TruthState": (
         "# Simulated true vehicle state. frame_id \"earth\".\n"
         "std_msgs/Header header\n"
@@ -180,6 +186,23 @@ MSG_TEXTS: dict[str, str] = {
         "float64[] innovation_covariance  # m x m, row major\n"
         "float64 nis  # normalised innovation squared\n"),
 }
+
+#: Earlier definitions of versioned project types, which the reader still reads: type -> {version:
+#: message text}. A versioned type's text declares ``uint16 SCHEMA_VERSION=<n>`` (none: version 1).
+SCHEMA_VERSIONS: dict[str, dict[int, str]] = {
+    f"{PKG}/DirectionVector": {
+        1: MSG_TEXTS[f"{PKG}/DirectionVector"].split("float64[3] edge_sensitivity")[0],
+        2: MSG_TEXTS[f"{PKG}/DirectionVector"]},
+}
+
+
+def schema_version(schema: str) -> int:
+    """The ``SCHEMA_VERSION`` constant of a schema's top-level message (the text before the first
+    ``MSG:`` section), 1 when it has none."""
+    top = re.split(r"^=+\s*$", schema, maxsplit=1, flags=re.M)[0]
+    m = re.search(r"^\s*uint16\s+SCHEMA_VERSION\s*=\s*(\d+)\s*(#.*)?$", top, flags=re.M)
+    return int(m.group(1)) if m else 1
+
 
 #: Topic-independent: which schema each kind of topic uses.
 SCHEMA_IMU = "sensor_msgs/msg/Imu"
@@ -692,9 +715,14 @@ class Layout:
 
 
 @functools.lru_cache(maxsize=None)
-def known_layout(short: str) -> Layout:
-    """Codec of a horizon-nav type from ``MSG_TEXTS`` (cached)."""
-    return Layout(short)
+def known_layout(short: str, version: int | None = None) -> Layout:
+    """Codec of a horizon-nav type from ``MSG_TEXTS`` (cached); ``version``: of a versioned type,
+    that version's definition (``SCHEMA_VERSIONS``)."""
+    if version is None:
+        return Layout(short)
+    defs = {t: parse_msg(MSG_TEXTS[t], t.split("/")[0]) for t in MSG_TEXTS}
+    defs[short] = parse_msg(SCHEMA_VERSIONS[short][version], short.split("/")[0])
+    return Layout(short, defs)
 
 
 def _encode_strings(v, n, what):

@@ -542,10 +542,11 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
     if layout is None:
         rd.warn(f"{path}: topic {topic}: unknown schema {sname!r} (encoding {senc!r}/{msg_enc!r}); skipped")
         return
+    version = _known_version(path, topic, short, stext)
     if short not in lf.MSG_TEXTS:
         rd.warn(f"{path}: topic {topic}: unknown schema {sname!r}; decoded generically "
                 "(fields named as in its definition)")
-    elif layout.signature != lf.known_layout(short).signature:
+    elif layout.signature != lf.known_layout(short, version).signature:
         rd.warn(f"{path}: topic {topic}: schema {sname!r} differs from horizon-nav's definition; "
                 "decoded as the file's schema says")
     if short == IMAGE_TYPE:
@@ -586,6 +587,21 @@ def _decode_channel(log, rd, topic, sname, senc, stext, msg_enc, parts, include_
     log.series[topic] = Series(topic, sname, t, fields)
 
 
+def _known_version(path, topic: str, short: str, stext: bytes) -> int | None:
+    """The schema version of a versioned project type (`scenarios.flightlog.format.SCHEMA_VERSIONS`),
+    None for other types; a version this reader does not know raises LogFormatError (its fields
+    may mean something else: no guessing)."""
+    known = lf.SCHEMA_VERSIONS.get(short)
+    if known is None:
+        return None
+    v = lf.schema_version(stext.decode("utf-8", "replace"))
+    if v not in known:
+        raise LogFormatError(f"{path}: topic {topic}: {short} schema version {v} is not one this reader knows "
+                             f"(versions {', '.join(str(k) for k in sorted(known))}); read it with the horizon-nav "
+                             "that wrote it or a newer one")
+    return v
+
+
 def _select(vals: dict, idx) -> dict:
     out = {}
     for k, v in vals.items():
@@ -624,6 +640,10 @@ def _validate_times(rd, topic, t, short: str = "") -> np.ndarray:
     return order
 
 
+#: DirectionVector fields where NaN means "none" (a vector without an Earth edge height)
+EDGE_FIELDS = ("edge_sensitivity", "edge_height", "edge_height_sigma", "edge_height_arc", "edge_height_arc_sigma")
+
+
 def _check_nan(rd, topic, t, fields):
     bad = np.zeros(len(t), bool)
     no_velocity = set()
@@ -631,6 +651,8 @@ def _check_nan(rd, topic, t, fields):
         # a position-only fix carries NaN velocity and velocity covariance: no measurement, not bad data
         if np.isnan(fields["velocity"].reshape(len(t), -1)).all(axis=1).all():
             no_velocity = {"velocity", "velocity_covariance"}
+    if lf.parse_camera_topic(topic) and lf.parse_camera_topic(topic)[1] == "vectors":
+        no_velocity = set(EDGE_FIELDS)   # NaN there: the vector has no edge height (docs/log-format.md)
     for name, v in fields.items():
         if name in no_velocity:
             continue

@@ -34,6 +34,8 @@ import tempfile
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import math
+
 import numpy as np
 from mcap_ros2._dynamic import serialize_dynamic
 
@@ -446,11 +448,15 @@ class LogWriter:
         self._queue(t, cid, rows)
 
     def write_vectors(self, k: int, t_ns, target, vector, covariance, covariance_overbound=None, *,
-                      residual=0.0, pixel_count=0, inlier_count=0, conic_type="", alpha=0.0) -> None:
+                      residual=0.0, pixel_count=0, inlier_count=0, conic_type="", alpha=0.0,
+                      edge_sensitivity=None, edge_height=math.nan, edge_height_sigma=math.nan,
+                      edge_height_arc=math.nan, edge_height_arc_sigma=math.nan) -> None:
         """``DirectionVector`` on ``/camera_<k>/vectors``: unit vectors in the camera frame.
 
         ``target`` and ``conic_type``: one str or N str; covariances (3, 3), (N, 3, 3) or (N, 9);
-        ``covariance_overbound`` defaults to ``covariance``.
+        ``covariance_overbound`` defaults to ``covariance``. Earth edge height (docs/log-format.md):
+        ``edge_sensitivity`` (3,) or (N, 3) [1/m] (default NaN: none), ``edge_height*`` [m], one
+        value or N.
         """
         topic = lf.camera_topic(k, "vectors")
         t = _times(t_ns, topic)
@@ -468,7 +474,13 @@ class LogWriter:
                   "pixel_count": _scalar(pixel_count, n, "pixel_count", np.uint32),
                   "inlier_count": _scalar(inlier_count, n, "inlier_count", np.uint32),
                   "conic_type": _strs(conic_type, n, f"{topic} conic_type"),
-                  "alpha": _scalar(alpha, n, "alpha")})
+                  "alpha": _scalar(alpha, n, "alpha"),
+                  "edge_sensitivity": _vec(np.full(3, np.nan) if edge_sensitivity is None else edge_sensitivity, n, 3,
+                                           f"{topic} edge_sensitivity"),
+                  "edge_height": _scalar(edge_height, n, "edge_height"),
+                  "edge_height_sigma": _scalar(edge_height_sigma, n, "edge_height_sigma"),
+                  "edge_height_arc": _scalar(edge_height_arc, n, "edge_height_arc"),
+                  "edge_height_arc_sigma": _scalar(edge_height_arc_sigma, n, "edge_height_arc_sigma")})
         self._put(topic, f"{lf.PKG}/DirectionVector", t, v)
 
     def write_truth(self, t_ns, position_e, velocity_e, q_eb, angular_rate_b, specific_force_b) -> None:

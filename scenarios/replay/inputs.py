@@ -16,6 +16,7 @@ from nav.navigator import GpsData, ImuData
 from nav.rotation import quat_to_matrix
 from nav.timescales import format_utc, parse_utc
 from scenarios.errors import UserError
+from scenarios.flightlog.reader import EDGE_FIELDS
 
 NS = 1_000_000_000
 TARGETS = ("earth", "sun", "moon")
@@ -166,10 +167,13 @@ def _vectors_of(path, log, k: int) -> dict | None:
     s = log.series.get(topic)
     if s is not None and log.topics[topic].message_count == len(s):
         d = {"t_ns": s.t_ns, "target": np.asarray(s.target).astype(str), "vector": s.vector, "covariance": s.covariance}
+        d.update({f: np.asarray(s.fields[f], float) for f in EDGE_FIELDS if f in s.fields})
     else:  # several vectors per stamp
         r = read_multi(path, topic)
         d = {"t_ns": r["t_ns"], "target": r["target"].astype(str), "vector": np.asarray(r["vector"], float).reshape(-1, 3),
              "covariance": np.asarray(r["covariance"], float).reshape(-1, 3, 3)}
+        d.update({f: np.asarray(r[f], float).reshape(len(r["t_ns"]), -1).squeeze(-1) if f != "edge_sensitivity"
+                  else np.asarray(r[f], float).reshape(-1, 3) for f in EDGE_FIELDS if f in r})
     order = np.argsort(d["t_ns"], kind="stable")
     return {key: v[order] for key, v in d.items()}
 

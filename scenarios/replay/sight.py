@@ -37,7 +37,7 @@ TRIAD_SEARCH_BATCH = 16
 
 def vector_data(rows) -> VectorData | None:
     """Rows ``(t_ns, camera index, target, e_c, P_c[, dedge_c, edge_ref_m[, edge_data_m,
-    edge_data_sigma_m]])`` -> VectorData in (time, camera, target) order (with ``dedge_c``,
+    edge_data_sigma_m[, edge_ref_sigma_m]]])`` -> VectorData in (time, camera, target) order (with ``dedge_c``,
     ``edge_ref_m`` and the arc's own height and sigma when a row has a sensitivity, NaN for the
     others); None without rows."""
     if not rows:
@@ -51,6 +51,7 @@ def vector_data(rows) -> VectorData | None:
         vd.edge_ref_m = np.array([r[6] if len(r) > 5 and r[5] is not None else np.nan for r in rows], float)
         vd.edge_data_m = np.array([r[7] if len(r) > 8 and r[5] is not None else np.nan for r in rows], float)
         vd.edge_data_sigma_m = np.array([r[8] if len(r) > 8 and r[5] is not None else np.nan for r in rows], float)
+        vd.edge_ref_sigma_m = np.array([r[9] if len(r) > 9 and r[5] is not None else np.nan for r in rows], float)
     return vd
 
 
@@ -63,7 +64,7 @@ def record_row(r, cam_numbers) -> tuple:
     if dedge is None:
         return row
     return row + (np.asarray(dedge, float), float(r.edge_height_m), float(getattr(r, "edge_data_m", math.nan)),
-                  float(getattr(r, "edge_data_sigma_m", math.nan)))
+                  float(getattr(r, "edge_data_sigma_m", math.nan)), float(r.edge_height_sigma_m))
 
 
 def frame_vectors(frames, cam_numbers) -> VectorData | None:
@@ -71,9 +72,11 @@ def frame_vectors(frames, cam_numbers) -> VectorData | None:
     return vector_data([record_row(r, cam_numbers) for f in frames for r in f.records if r.camera in cam_numbers])
 
 
-def log_vectors(inp, cam_numbers, targets, a, b) -> VectorData | None:
+def log_vectors(inp, cam_numbers, targets, a, b, edge_state: bool = False) -> VectorData | None:
     """The log's ``/camera_<k>/vectors`` of ``targets`` in the window [a, b] (camera indices into
-    ``cam_numbers``)."""
+    ``cam_numbers``). A vector with an edge sensitivity (DirectionVector version 2) gives it with
+    its heights when ``edge_state`` (the filter estimates the edge height), else its covariance
+    with the height's part added back (``P + sigma_h^2 g g^T``)."""
     rows = []
     for i, k in enumerate(cam_numbers):
         v = inp.cameras[k].vectors
@@ -81,8 +84,21 @@ def log_vectors(inp, cam_numbers, targets, a, b) -> VectorData | None:
             continue
         m = (v["t_ns"] >= a) & (v["t_ns"] <= b) & np.isin(v["target"], list(targets))
         for j in np.flatnonzero(m):
-            rows.append((int(v["t_ns"][j]), i, NAV_TARGET[str(v["target"][j])], v["vector"][j], v["covariance"][j]))
+            rows.append(_log_row(v, j, i, edge_state))
     return vector_data(rows)
+
+
+def _log_row(v: dict, j: int, i: int, edge_state: bool) -> tuple:
+    """Row ``j`` of a camera's log vectors ``v`` (:func:`log_vectors`) for :func:`vector_data`."""
+    row = (int(v["t_ns"][j]), i, NAV_TARGET[str(v["target"][j])], v["vector"][j], v["covariance"][j])
+    g = v["edge_sensitivity"][j] if "edge_sensitivity" in v else None
+    if g is None or not np.all(np.isfinite(g)):
+        return row
+    if edge_state:
+        return row + (g, float(v["edge_height"][j]), float(v["edge_height_arc"][j]),
+                      float(v["edge_height_arc_sigma"][j]), float(v["edge_height_sigma"][j]))
+    s = float(v["edge_height_sigma"][j])
+    return row[:4] + (row[4] + (s * s if np.isfinite(s) else 0.0) * np.outer(g, g),)
 
 
 @dataclass

@@ -91,7 +91,20 @@ def write_vectors(w, vectors, cam_numbers, extra: dict | None = None) -> None:
         m = np.asarray(vectors.camera) == i
         if m.any():
             w.write_vectors(int(k), np.asarray(vectors.t_ns)[m], list(tg[m]), np.asarray(vectors.e_c)[m],
-                            np.asarray(vectors.P_c)[m])
+                            np.asarray(vectors.P_c)[m], **_edge_columns(vectors, m))
+
+
+def _edge_columns(vectors, m) -> dict:
+    """The DirectionVector edge-height fields of the vectors ``m`` (empty without a sensitivity)."""
+    if getattr(vectors, "dedge_c", None) is None:
+        return {}
+    out = {"edge_sensitivity": np.asarray(vectors.dedge_c, float)[m], "edge_height": np.asarray(vectors.edge_ref_m, float)[m]}
+    for key, name in (("edge_height_sigma", "edge_ref_sigma_m"), ("edge_height_arc", "edge_data_m"),
+                      ("edge_height_arc_sigma", "edge_data_sigma_m")):
+        a = getattr(vectors, name, None)
+        if a is not None:
+            out[key] = np.asarray(a, float)[m]
+    return out
 
 
 def write_solution(w, res, smooth, cam_numbers, *, vectors=None) -> None:

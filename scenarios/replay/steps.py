@@ -357,7 +357,7 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
     inp = flight.inputs
     if flight.vision == "vectors":
         from scenarios.replay.sight import log_vectors
-        return Sight(flight, log_vectors(inp, flight.cam_numbers, targets, flight.t_from, flight.t_to))
+        return Sight(flight, log_vectors(inp, flight.cam_numbers, targets, flight.t_from, flight.t_to, edge_state))
     if flight.vision != "images":
         return Sight(flight, None)
     import cv2
