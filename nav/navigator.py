@@ -105,11 +105,11 @@ class VectorData:
     """Camera direction vectors: camera index, target ("hor", "sun", "moon"), unit vector e_c in
     the camera frame and its covariance P_c (003 eq. (33)).
 
-    Optionally, for horizon vectors fitted with a fixed Earth edge height: ``edge_ref_m`` (N,) that
+    Optionally, for horizon vectors fitted at an Earth edge height: ``edge_ref_m`` (N,) that
     height [m] and ``dedge_c`` (N, 3) the vector's sensitivity to the true edge height, ``d e_c /
-    d h_e`` [1/m] (NaN where unknown): the vector measures ``e_c(h_e) = e_c + dedge_c (h_e -
-    edge_ref_m)``, the filter's ``h_e`` state (``Tuning.edge_height``) takes it from there, and
-    ``P_c`` must then hold the pixel noise only (not the height's uncertainty). With them,
+    d h_e`` [1/m] (NaN where unknown): the vector measures ``e_true + dedge_c (h_e - edge_ref_m)``,
+    the filter's ``h_e`` state (``Tuning.edge_height``) takes it from there, and ``P_c`` must then
+    be the covariance given the height (not the height's uncertainty). With them,
     ``edge_data_m`` (N,) the arc's own edge height [m] and ``edge_data_sigma_m`` (N,) its 1-sigma
     (inf or NaN: none) measure ``h_e`` directly (`vision.edge_height.conditional_on_height`);
     ``edge_ref_sigma_m`` (N,) the 1-sigma of ``edge_ref_m`` the vision had (the covariance without

@@ -259,7 +259,7 @@ def test_summary_leaves_out_cameras_without_sensitivity():
 
 def test_image_replay_estimates_the_edge_height(ilog, tmp_path):
     """The image replay with ``[states.edge_height] mode = "E"`` (the short rendered atek log, 10
-    frames): the vision gives every Earth vector its sensitivity, fitted at the vision's prior mean;
+    frames): the vision gives every Earth vector its sensitivity (limb-edge frames) at its fitted height;
     both cameras' edge heights are in the summary with a smoothed sigma no larger than the 20 km
     prior's, and the solution log names the states ``h_e_1``, ``h_e_2``."""
     from scenarios.flightlog import read_log

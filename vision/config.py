@@ -450,12 +450,12 @@ class EdgeHeightOptions(_Checks):
         agrees with the threshold edge's within ``limb_gate`` sigmas of their difference
         (covariance the sum of theirs); else the threshold edge is used. 0: no cross-check.
     filter_state : the navigation filter estimates the edge height (its ``h_e`` state, one per
-        camera): the direction is the fixed-height fit of the threshold edge at the prior mean
-        ``TargetConfig.atmosphere_m`` (no joint fit, no limb edge: one edge per camera, the one
-        the state describes; the candidates are scored there too, ``start_m`` unused), ``P_c``
-        holds the pixel noise only (the height's uncertainty is the filter's, not to be counted
-        twice), and ``VectorRecord.dedge_c`` carries the sensitivity ``d e_c / d h_e`` [1/m],
-        with ``edge_height_m`` the height fitted at.
+        camera, describing the limb edge when the limb model is on, else the threshold edge):
+        the fit is the default one, and the records of that edge give the direction given the
+        height (``P_c`` without the height's part: it is the filter's, not to be counted twice),
+        ``VectorRecord.dedge_c`` the sensitivity ``d e_c / d h_e`` [1/m] at ``edge_height_m``,
+        and the arc's own height ``edge_data_m`` with its sigma
+        (`vision.edge_height.conditional_on_height`); records of the other edge are as without it.
     offset_gate : the flight's limb edge height offset (`vision.limb_offset`: one per camera, the
         weighted mean over its limb-edge frames of the arc's own height minus the prior's mean)
         tightens the limb edge's prior to N(mean, offset sigma^2 + limb term^2) when

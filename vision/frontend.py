@@ -366,8 +366,7 @@ def _edge_data(out: TargetResult, model) -> tuple:
 def model_height_m(tc: TargetConfig) -> float:
     """Edge height [m] the Earth's limb model is built at: the candidates are scored with its
     cone and the joint fit of the height starts there (``edge.start_m`` when the height is
-    estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is, as with
-    ``edge.filter_state``)."""
+    estimated and set, else ``atmosphere_m``, the prior's mean, which a fixed height is)."""
     if tc.edge.estimate and tc.atmosphere_sigma_m > 0 and not math.isnan(tc.edge.start_m):
         return tc.edge.start_m
     return tc.atmosphere_m

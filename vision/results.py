@@ -30,9 +30,9 @@ class VectorRecord:
         (`TargetResult.limb_path`: the threshold edge, or the limb edge at the Sun overhead) and
         its 1-sigma, fitted with the direction where the arc constrains it, else the prior's
         (`vision.edge_height`); NaN for the Sun/Moon.
-    dedge_c : Earth with ``EdgeHeightOptions.filter_state``: (3,) ``d e_c / d h_e`` [1/m], how the
-        vector moves when the true edge is higher than ``edge_height_m`` (the filter's edge
-        height column); None otherwise. ``e_c`` and ``P_c`` are then the direction given the
+    dedge_c : Earth with ``EdgeHeightOptions.filter_state``, on the edge the filter's state
+        describes: (3,) ``d e_c / d h_e`` [1/m], how the vector moves when the true edge is higher
+        than ``edge_height_m`` (the filter's edge height column); None otherwise. ``e_c`` and ``P_c`` are then the direction given the
         height ``edge_height_m`` and its covariance (`vision.edge_height.conditional_on_height`).
     edge_data_m, edge_data_sigma_m : Earth with ``EdgeHeightOptions.filter_state``: the arc's own
         (prior-free) edge height [m] and its 1-sigma [m] (inf where the arc cannot separate the

@@ -120,8 +120,8 @@ def image_plan(flight, targets, *, vision_config=None, vision_rate_hz=None, mask
                wording: Wording = PYTHON, edge_state: bool = False) -> ImagePlan:
     """The frames of ``flight``'s window (at most ``vision_rate_hz`` per camera) with their GPS
     position and height priors. ``edge_state``: the filter estimates each camera's edge height
-    (``Tuning.edge_height`` on): the Earth vectors are the fixed-height fits with their
-    sensitivity (`vision.config.EdgeHeightOptions.filter_state`)."""
+    (``Tuning.edge_height`` on): the Earth vectors are given the height, with their sensitivity
+    (`vision.config.EdgeHeightOptions.filter_state`)."""
     from scenarios.config.vision import load_vision_config
     from scenarios.replay.vision_worker import FrameJob
     inp, cam_numbers, a, b = flight.inputs, flight.cam_numbers, flight.t_from, flight.t_to

@@ -337,8 +337,9 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
     wording : scenarios.replay.inputs.Wording
     edge_state : bool
         The filter will estimate each camera's Earth edge height (``Tuning.edge_height`` on): the
-        Earth vectors are then fixed-height fits with their sensitivity to the height
-        (`vision.config.EdgeHeightOptions.filter_state`, ``VectorData.dedge_c``).
+        Earth vectors are then given the height, with their sensitivity to it and the arc's own
+        height (`vision.config.EdgeHeightOptions.filter_state`, ``VectorData.dedge_c``); a log's
+        vectors keep theirs (DirectionVector version 2).
 
     Returns
     -------

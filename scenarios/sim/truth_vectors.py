@@ -87,12 +87,14 @@ class TruthVectors:
         return int(self.t_ns.size)
 
     def write(self, writer) -> None:
-        """Write ``/camera_<k>/vectors`` for every camera (``scenarios.flightlog.writer.LogWriter``)."""
+        """Write ``/camera_<k>/vectors`` for every camera (``scenarios.flightlog.writer.LogWriter``;
+        with ``edge_ref_m``, the edge sensitivity and the height fitted at)."""
         for k in np.unique(self.camera):
             m = self.camera == k
+            edge = {} if self.dedge_c is None else {"edge_sensitivity": self.dedge_c[m], "edge_height": self.edge_ref_m[m]}
             writer.write_vectors(int(k), self.t_ns[m], list(self.target[m]), self.e_c[m], self.P_c[m],
                                  self.P_overbound[m], pixel_count=self.n_pixels[m], inlier_count=self.n_pixels[m],
-                                 conic_type=list(self.conic_type[m]))
+                                 conic_type=list(self.conic_type[m]), **edge)
 
     def vector_data(self, cameras=None):
         """:class:`nav.navigator.VectorData`; ``cameras``: the camera numbers k in the order of the
