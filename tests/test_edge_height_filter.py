@@ -282,3 +282,33 @@ def test_image_replay_estimates_the_edge_height(ilog, tmp_path):
     assert {"h_e_1", "h_e_2"} <= set(sm.state_names)
     j = sm.state_names.index("h_e_2")
     assert np.asarray(sm.state)[0, j] / 1e3 == pytest.approx(s["edge_height"]["camera_2"]["smoothed_km"], rel=1e-12)
+
+
+def test_summary_moves_vectors_to_the_learned_height():
+    """vector_errors: Earth vectors built as ``truth + dedge_c (h_true - ref)`` (the measurement model)
+    and a smoothed h_e of h_true: the ``camera_1/earth*`` row (moved to the learned height) is on the
+    truth to the arccos's resolution (sqrt(2 eps) rad = 1.2e-6 deg; the normalisation's second-order
+    term is 1e-12 rad), the unmoved row off by |dedge_c| (h_true - ref) (0.015 deg here)."""
+    from types import SimpleNamespace
+
+    from scenarios.replay.summary import vector_errors
+    lay = build_layout(Tuning().with_(edge_height=StateGroupTuning("E", 20e3)), 1)
+    rng = np.random.default_rng(4)
+    n = 20
+    tru = rng.normal(size=(n, 3))
+    tru /= np.linalg.norm(tru, axis=1, keepdims=True)
+    g = np.cross(tru, [0.0, 0.0, 1.0])
+    g *= math.radians(0.001) / 1e3 / np.linalg.norm(g, axis=1, keepdims=True)   # 0.001 deg per km
+    ref = np.full(n, 45e3)
+    e = tru + g * (TRUE_EDGE_M + 20e3 - ref)[:, None]      # true edge 30 km: 15 km below the fit's
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    t = np.arange(n, dtype=np.int64)
+    vec = VectorData(t, np.zeros(n, int), np.array(["hor"] * n), e, np.tile(np.eye(3) * 1e-8, (n, 1, 1)), g, ref)
+    est = np.zeros((1, lay.n))
+    est[0, lay["h_e_0"].start] = TRUE_EDGE_M + 20e3
+    rr = SimpleNamespace(vectors=vec, cam_numbers=[1], nav=SimpleNamespace(layout=lay),
+                         smooth=SimpleNamespace(estimates=est),
+                         inputs=SimpleNamespace(cameras={1: SimpleNamespace(truth={"t_ns": t, "nadir_c": tru})}))
+    ve = vector_errors(rr)
+    assert ve["camera_1/earth*"]["rms_deg"] < 1e-5 and ve["camera_1/earth*"]["n"] == n
+    assert ve["camera_1/earth"]["rms_deg"] == pytest.approx(0.015, rel=1e-3)

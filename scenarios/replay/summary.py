@@ -118,7 +118,9 @@ def vector_errors(rr) -> dict:
     (``/camera_<k>/truth``, true camera frame, same stamp), per camera and target: n, mean, RMS,
     median, 95th percentile, max, and the mean error vector's angle (the bias; the rest is scatter).
     Empty without camera truth. For image vectors these are the front end's vectors after the
-    geocentric correction (:func:`scenarios.replay.vision_worker.geocentric_correction`)."""
+    geocentric correction (:func:`scenarios.replay.vision_worker.geocentric_correction`). With an
+    estimated edge-height state, ``camera_<k>/earth*`` holds the Earth vectors with a sensitivity
+    moved to the smoothed height (:func:`_at_learned_height`)."""
     v = rr.vectors
     out: dict = {}
     if v is None or not len(v.t_ns):
@@ -139,14 +141,40 @@ def vector_errors(rr) -> dict:
                 continue
             e = v.e_c[m][ok]
             tr = ct[field][j[ok]]
-            a = np.degrees(np.arccos(np.clip(np.sum(e * tr, axis=1), -1.0, 1.0)))
-            bias = np.degrees(np.linalg.norm(np.mean(e - tr, axis=0)))
             name = {"hor": "earth"}.get(str(tgt), str(tgt))
-            out[f"camera_{k}/{name}"] = {"n": int(ok.sum()), "unmatched": int((~ok).sum()), "mean_deg": float(a.mean()),
-                                         "rms_deg": float(np.sqrt(np.mean(a ** 2))), "median_deg": float(np.median(a)),
-                                         "p95_deg": float(np.percentile(a, 95)), "max_deg": float(a.max()),
-                                         "bias_deg": float(bias)}
+            out[f"camera_{k}/{name}"] = _angle_stats(e, tr, int((~ok).sum()))
+            moved = _at_learned_height(rr, c, m, ok, e)
+            if moved is not None:
+                out[f"camera_{k}/{name}*"] = _angle_stats(moved[0], tr[moved[1]], 0)
     return out
+
+
+def _angle_stats(e, tr, unmatched: int) -> dict:
+    """n, mean, RMS, median, 95th percentile, max [deg] of the angles between the rows of ``e``
+    and ``tr``, and the angle of their mean difference (the bias)."""
+    a = np.degrees(np.arccos(np.clip(np.sum(e * tr, axis=1), -1.0, 1.0)))
+    return {"n": int(a.size), "unmatched": unmatched, "mean_deg": float(a.mean()), "rms_deg": float(np.sqrt(np.mean(a ** 2))),
+            "median_deg": float(np.median(a)), "p95_deg": float(np.percentile(a, 95)), "max_deg": float(a.max()),
+            "bias_deg": float(np.degrees(np.linalg.norm(np.mean(e - tr, axis=0))))}
+
+
+def _at_learned_height(rr, c: int, m, ok, e):
+    """The horizon vectors of camera index ``c`` (rows ``m`` of the vectors, ``ok`` of them matched,
+    directions ``e``) with a sensitivity moved to the smoothed edge height of the camera's
+    ``h_e`` state, ``e - dedge_c (h - edge_ref_m)`` (the vectors' value at the learned height),
+    and the mask of ``e``'s rows they are; None without a sensitivity or an estimated state."""
+    v, smooth, lay = rr.vectors, getattr(rr, "smooth", None), rr.nav.layout
+    g = getattr(v, "dedge_c", None)
+    name = lay.edge_name(c)
+    if g is None or smooth is None or smooth.estimates is None or not lay.has(name):
+        return None
+    g, ref = np.asarray(g, float)[m][ok], np.asarray(v.edge_ref_m, float)[m][ok]
+    has = np.all(np.isfinite(g), axis=1) & np.isfinite(ref)
+    if not has.any():
+        return None
+    h = float(smooth.estimates[0, lay[name].start])
+    e2 = e[has] - g[has] * (h - ref[has])[:, None]
+    return e2 / np.linalg.norm(e2, axis=1, keepdims=True), has
 
 
 def truth_errors(rr) -> dict:
@@ -243,6 +271,8 @@ def format_table(s: dict) -> str:
         for k, d in s["vector_errors"].items():
             L.append(f"{k:<16} {d['n']:>5} {d['mean_deg']:>7.3f} {d['rms_deg']:>7.3f} {d['median_deg']:>7.3f} "
                      f"{d['p95_deg']:>7.3f} {d['max_deg']:>7.3f} {d['bias_deg']:>7.3f}")
+        if any(k.endswith("*") for k in s["vector_errors"]):
+            L.append("  * the Earth vectors with a sensitivity, moved to the smoothed edge height")
     L.append("")
     L.append("time per stage [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in s["timings_s"].items()))
     L.append(f"solution: {s['solution']}" + (f"   recording: {s['rrd']}  (open with: {viewer_command(s['rrd'])})" if s["rrd"] else ""))
