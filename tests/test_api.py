@@ -201,7 +201,7 @@ def test_errors_name_the_parameters(vlog, tmp_path):
     with pytest.raises(UserError, match=r"^init: expected 'auto', 'truth', 'triad', 'align', a state file or an InitialState"):
         navigate(log, init=3)
     missing = tmp_path / "none.toml"
-    with pytest.raises(UserError, match=r"^init .*none\.toml: cannot read"):
+    with pytest.raises(UserError, match=r"^init .*none\.toml: state file not found"):
         navigate(log, init=missing)
     with pytest.raises(UserError, match=r"tuning file"):
         navigate(log, tuning=missing)

@@ -46,7 +46,7 @@ def _write(tmp_path, text, name="bad.toml"):
     (lambda s: s.replace('time_utc = "2019-06-13T02:21:00Z"', 'time_utc = "yesterday"'), "launch.time_utc"),
     (lambda s: s.replace("[gps]", "[gpss]"), "gpss"),
     (lambda s: s.replace("propellant_kg = 620.0", "propellant_kg = -1.0"), "vehicle.stages[0].propellant_kg"),
-    (lambda s: s + "\n[imu\n", "malformed TOML"),
+    (lambda s: s + "\n[imu\n", "not valid TOML"),
 ])
 def test_bad_input_names_file_and_key(tmp_path, edit, expect):
     p = _write(tmp_path, edit(ATEK_TEXT))

@@ -44,7 +44,7 @@ def test_cli_errors_are_one_line(tmp_path):
                             str(tmp_path / "o.mcap"), "--quiet"], capture_output=True, text=True)
         assert r.returncode == 2 and "Traceback" not in r.stderr
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
-    assert "broken.toml" in r.stderr and "malformed TOML" in r.stderr
+    assert "broken.toml" in r.stderr and "not valid TOML" in r.stderr
     assert not (tmp_path / "o.mcap").exists()
 
 

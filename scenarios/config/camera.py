@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
+from scenarios.config.toml_file import parse_toml
 from pathlib import Path
 from typing import Any
 
@@ -62,9 +62,10 @@ def load_camera(path: str | os.PathLike) -> Camera:
         raise UserError(f"{p}: unknown camera file type {suffix!r}; expected .toml, .yaml/.yml (ROS "
                         f"CameraInfo or OpenCV) or .xml (OpenCV)")
     try:
-        doc = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: not valid TOML ({exc})") from None
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{p}: not valid TOML (not UTF-8 text: {exc.reason} at byte {exc.start})") from None
+    doc = parse_toml(text, str(p))
     if "camera" not in doc:
         raise UserError(f"{p}: missing table [camera]")
     try:

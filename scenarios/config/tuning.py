@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nav.tuning import Tuning, tuning_from_toml
+from nav.tuning import Tuning, tuning_from_dict
+from scenarios.config.toml_file import read_toml
 
 #: The default tuning file: 003 table 3, i.e. no override.
 DEFAULT_TUNING_FILE = Path(__file__).parent.parent / "library" / "tuning" / "table3.toml"
@@ -15,11 +16,8 @@ DEFAULT_TUNING_FILE = Path(__file__).parent.parent / "library" / "tuning" / "tab
 def load_tuning(path: str | Path | None = None) -> Tuning:
     """Load a tuning file; ``None`` loads 003 table 3. Errors name the file."""
     p = Path(path) if path is not None else DEFAULT_TUNING_FILE
+    doc, _ = read_toml(p, "tuning file")
     try:
-        text = p.read_text()
-    except OSError as e:
-        raise ValueError(f"{p}: cannot read tuning file ({e.strerror})") from None
-    try:
-        return tuning_from_toml(text)
+        return tuning_from_dict(doc)
     except ValueError as e:
         raise ValueError(f"{p}: {e}") from None

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tomllib
+from scenarios.config.toml_file import read_toml
 from pathlib import Path
 from typing import Any
 
@@ -185,14 +185,5 @@ def load_vision_config(path: str | os.PathLike | None = None,
     UserError names the file."""
     if path is None:
         return vision_config_from_dict({}, camera, "defaults")
-    p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise UserError(f"{p}: vision config file not found") from None
-    except OSError as exc:
-        raise UserError(f"{p}: cannot read vision config ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"{p}: not valid TOML ({exc})") from None
-    return vision_config_from_dict(doc, camera, str(p))
+    doc, _ = read_toml(path, "vision config file")
+    return vision_config_from_dict(doc, camera, str(Path(path)))

@@ -56,6 +56,7 @@ from __future__ import annotations
 import numpy as np
 
 from nav import earth, ins, timescales
+from nav.rotation import angle_between
 
 BASELINE_S = 10.0
 MOVING_MPS = 5.0
@@ -340,11 +341,6 @@ def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v + 2.0 * w * c + 2.0 * np.cross(u, c)
 
 
-def _angle_deg(a, b):
-    c = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def check_gyro_rotation(report, imu, gps, rate_hz, *, diagnose: bool = True) -> None:
     """Gyro-integrated specific force against the GPS specific force (module docstring)."""
     if gps is None or not gps.has_velocity or len(gps.t_ns) < 3 or len(imu.t_ns) < 3:
@@ -371,13 +367,12 @@ def check_gyro_rotation(report, imu, gps, rate_hz, *, diagnose: bool = True) -> 
             continue
         a = fg[sel] / np.linalg.norm(fg[sel], axis=1, keepdims=True)
         b = fi[sel] / np.linalg.norm(fi[sel], axis=1, keepdims=True)
-        turn = max(_angle_deg(a, np.broadcast_to(a.mean(0), a.shape)).max(),
-                   _angle_deg(b, np.broadcast_to(b.mean(0), b.shape)).max())
+        turn = np.degrees(max(angle_between(a, a.mean(0)).max(), angle_between(b, b.mean(0)).max()))
         if turn < 10.0:
             continue
         U, _, Vt = np.linalg.svd(a.T @ b)
         C = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-        res.append(float(np.sqrt(np.mean(_angle_deg(a, b @ C.T) ** 2))))
+        res.append(float(np.sqrt(np.mean(np.degrees(angle_between(a, b @ C.T)) ** 2))))
         turns.append(turn)
     if not res:
         report.add("info", "imu", "gyro_rotation", f"no {WINDOW_S:g} s window where the specific force turns by more "

@@ -35,7 +35,7 @@ Every table refuses unknown keys (typos) and every error names the mapping file 
 from __future__ import annotations
 
 import math
-import tomllib
+from scenarios.config.toml_file import read_toml
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -610,18 +610,8 @@ def parse_checks(ctx: _Ctx, d: Any) -> Checks:
 
 def load_mapping(path: str | Path) -> Mapping:
     """Read and validate a mapping file; UserError naming the file and key on any problem."""
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise UserError(f"{p}: mapping file not found") from None
-    except OSError as exc:
-        raise UserError(f"{p}: cannot read mapping file ({exc.strerror})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"{p}: not valid TOML ({exc})") from None
-    return mapping_from_dict(doc, p, text)
+    doc, text = read_toml(path, "mapping file")
+    return mapping_from_dict(doc, Path(path), text)
 
 
 def mapping_from_dict(doc: dict, path: Path, text: str = "") -> Mapping:

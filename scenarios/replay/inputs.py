@@ -295,11 +295,6 @@ def window_gps(gps: GpsData | None, a: int, b: int) -> GpsData | None:
                    None if gps.P_v is None else gps.P_v[m])
 
 
-def angle_deg(a, b) -> np.ndarray:
-    c = np.clip(np.sum(np.asarray(a) * np.asarray(b), axis=-1), -1.0, 1.0)
-    return np.degrees(np.arccos(c))
-
-
 __all__ = ["CameraSetup", "ReplayInputs", "Truth", "load_inputs", "parse_time", "read_multi", "window_imu",
            "window_gps", "camera_from_info", "TARGETS", "Wording", "PYTHON", "CLI"]
 

@@ -511,7 +511,7 @@ def _timeseries(rec, rr, inp, res, vectors, cam_numbers):
     # unaided angle residuals (fig. 42 a): the measured vectors against the ones predicted with the
     # free-inertial attitude (GPS-aided position, nominal mount), the vectors the filter used
     if len(res.unaided_q_eb) and vectors is not None and len(vectors.t_ns):
-        from scenarios.replay.inputs import angle_deg
+        from nav.rotation import angle_between
         j = np.clip(np.searchsorted(res.t_ns, vectors.t_ns), 0, len(res.t_ns) - 1)
         ok = np.array([(int(t), str(g), int(c)) in used for t, g, c in zip(vectors.t_ns, vectors.target, vectors.camera)],
                       bool)
@@ -524,7 +524,7 @@ def _timeseries(rec, rr, inp, res, vectors, cam_numbers):
                 e = _predicted_c(inp, res.unaided_q_eb[jm], res.x_e[jm], res.t_ns[jm], str(tgt), inp.cameras[k].R_bc)
                 name = {"hor": "earth"}.get(str(tgt), str(tgt))
                 _series(rec, rr, inp, f"angle_residual/unaided/camera_{k}/{name}", vectors.t_ns[m],
-                        angle_deg(vectors.e_c[m], e))
+                        np.degrees(angle_between(vectors.e_c[m], e)))
     # misalignment (fig. 43)
     for c, k in enumerate(cam_numbers):
         if len(res.misalignment_t_ns):

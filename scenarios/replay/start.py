@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 
-import tomllib
+from scenarios.config.toml_file import read_toml
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -180,10 +180,7 @@ def _given_init(path, inp, imu, w: Wording) -> tuple:
     """The state file's InitialState, and whether its position and velocity came from the GPS."""
     p = Path(path)
     what = f"{w.name('init_file')} {p}"
-    try:
-        d = tomllib.loads(p.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise UserError(f"{what}: cannot read ({e})") from None
+    d, _ = read_toml(p, "state file", label=what)
     t = parse_time(str(d["time"]), inp.liftoff_ns, f"{what}: time") if "time" in d else int(imu.t_ns[0])
     i = int(np.searchsorted(imu.t_ns, t))
     if i >= imu.t_ns.size - 1:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
+from scenarios.config.toml_file import read_toml
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -429,18 +429,8 @@ def load_camera_for(cam: CameraConfig, source: str = ""):
 # ------------------------------------------------------------------------------------------------
 def load_scenario_file(path: str | Path) -> Scenario:
     """Read and validate a scenario TOML file (UserError naming the file and key on problems)."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{p}: scenario file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: cannot read scenario file ({exc})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"{p}: malformed TOML: {exc}") from None
-    return scenario_from_dict(doc, str(p), text)
+    doc, text = read_toml(path, "scenario file")
+    return scenario_from_dict(doc, str(Path(path)), text)
 
 
 def library_names() -> list[str]:

@@ -50,7 +50,7 @@ import copy
 import dataclasses
 import itertools
 import math
-import tomllib
+from scenarios.config.toml_file import parse_toml
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -333,7 +333,7 @@ def load_base(study: Study) -> dict:
 
     try:
         tuning = load_tuning(study.tuning)
-    except ValueError as e:
+    except (ValueError, UserError) as e:
         raise UserError(f"{study.path}: study.tuning: {e}") from None
     return {"scenario": load_scenario(study.scenario), "tuning": tuning, "run": RunConfig()}
 
@@ -385,10 +385,7 @@ def _resolve_file(value: str, rel: Path, library: Path, what: str, where: str) -
 
 def study_from_text(text: str, path: str = "<study>") -> Study:
     """Parse and validate a study (TOML text). Every parameter is tried on the base configuration."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{path}: malformed TOML: {e}") from None
+    doc = parse_toml(text, path)
     known = {"study", "set", "variants", "grid", "random"}
     unknown = sorted(set(doc) - known)
     if unknown:
