@@ -26,10 +26,12 @@ its shape. The figures of one case (`flight_figures`):
   and from the first Moon vector on (``nees_in_band_moon``: before it the rotation about the
   nadir is seen by no vector, and a filter started at the truth has an error far inside its
   2 deg initial sigma); ``nees_mean``;
-* ``att_rms_deg`` (forward, smoothed), ``moon_found`` / ``moon_frames``.
+* ``att_rms_forward_deg``, ``att_rms_smoothed_deg`` against the truth; ``att_inside_3sigma_smoothed``:
+  the fraction of the smoother's epochs whose attitude error is inside 3 sigma on every axis;
+* ``moon_found`` / ``moon_frames`` (frames whose true Moon centre is in the image), ``moon_rms_deg``.
 
 Run: ``python -m scenarios.study.orbit_mismatch [--rate HZ] [--out FILE.json]``;
-tests/test_orbit_replay.py runs one case (short flight) and the slow study.
+tests/test_orbit_replay.py runs one case on a shortened flight, and the whole study under ``-m slow``.
 """
 from __future__ import annotations
 
@@ -130,6 +132,19 @@ def _nees(rr):
     return res.meas_t_ns[ok], np.einsum("ni,ni->n", psi, np.linalg.solve(P, psi[..., None])[..., 0])
 
 
+def _smoothed_inside_3sigma(rr) -> float:
+    """Fraction of the smoother's epochs whose attitude error is inside 3 sigma on every axis."""
+    from scenarios.replay.summary import attitude_error
+
+    sm, tr = rr.smooth, rr.inputs.truth
+    j = np.searchsorted(tr.t_ns, sm.t_ns)
+    ok = j < tr.t_ns.size
+    ok[ok] = tr.t_ns[j[ok]] == sm.t_ns[ok]
+    psi = attitude_error(sm.q_eb[ok], tr.q_eb[j[ok]])
+    s3 = 3 * np.sqrt(sm.P[ok][:, rr.nav.layout["psi"]])
+    return float(np.mean(np.all(np.abs(psi) <= s3, axis=1)))
+
+
 def flight_figures(rr, case: Case | None = None) -> dict:
     """The figures of one replayed orbit (see the module docstring)."""
     from scenarios.replay.summary import summarize
@@ -158,6 +173,7 @@ def flight_figures(rr, case: Case | None = None) -> dict:
                nees_mean=float(np.mean(nees)), nees_epochs=int(len(nees)),
                att_rms_forward_deg=s["truth"]["forward"]["att_rms_deg"],
                att_rms_smoothed_deg=s["truth"]["smoothed"]["att_rms_deg"],
+               att_inside_3sigma_smoothed=_smoothed_inside_3sigma(rr),
                moon_found=int(len(mm)), moon_frames=_moon_frames(rr),
                moon_rms_deg=float(np.sqrt(np.mean(_angle_deg(v.e_c[mm], m_true) ** 2))) if len(mm) else math.nan)
     if case is not None:
