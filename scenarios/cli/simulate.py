@@ -115,8 +115,8 @@ def run(args) -> int:
                                      progress=lambda f, label: progress(0.85 * f, label))
         images = masks = None
         if args.images:
-            from scenarios.sim.render import RenderOptions, payload_mask, render_flight_images
-            opts = RenderOptions() if args.jpeg_quality is None else RenderOptions(jpeg_quality=args.jpeg_quality)
+            from scenarios.sim.render import payload_mask, render_flight_images, scenario_render_options
+            opts = scenario_render_options(sc, args.jpeg_quality)
             images = render_flight_images(flight, options=opts, progress=not args.quiet)
             if opts.payload_mask is not None:   # what the renderer draws the payload into
                 masks = {c.k: payload_mask(c.camera, opts.payload_mask) for c in flight.cameras}

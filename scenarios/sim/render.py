@@ -911,6 +911,18 @@ def flight_frame_truths(flight: Any) -> list[FrameTruth]:
     return out
 
 
+def scenario_render_options(scenario: Any, jpeg_quality: int | None = None) -> RenderOptions:
+    """The renderer's options for a scenario's images: the default look with the scenario's
+    ``[render]`` table (payload drawn or not, limb shift) and an optional JPEG quality."""
+    rc = scenario.render
+    kw: dict[str, Any] = {"limb_shift_m": rc.limb_shift_m}
+    if not rc.payload:
+        kw.update(payload_mask=None, payload_reflections=False)
+    if jpeg_quality is not None:
+        kw["jpeg_quality"] = jpeg_quality
+    return RenderOptions(**kw)
+
+
 def render_flight_images(flight: Any, *, options: RenderOptions | None = None,
                          progress: bool = True) -> Iterator[tuple[int, int, bytes]]:
     """Render every camera frame of a simulated flight for the log: yields ``(k, stamp_ns, jpeg)``

@@ -214,6 +214,38 @@ class CameraConfig:
 
 
 @dataclass
+class OrbitConfig:
+    """A spacecraft already in orbit (``[orbit]``; its presence replaces the launch): the state at
+    ``epoch_utc`` (t = 0) from a geodetic point, the heading of the inertial velocity and its speed,
+    no motors and no drag, and an attitude that follows a pointing law (scenarios/sim/orbit.py):
+    x_b along the geocentric zenith, y_b the along-track direction turned by ``yaw_deg`` about x_b,
+    the body turning with the orbit about its normal and by ``yaw_rate_dps`` about x_b."""
+    epoch_utc: str = _f("2023-11-20T22:13:20Z", "time of the initial state (t = 0), ISO-8601 UTC")
+    lat_deg: float = _f(0.0, "geodetic latitude of the initial position", minimum=-90, maximum=90)
+    lon_deg: float = _f(0.0, "longitude of the initial position", minimum=-180, maximum=360)
+    height_m: float = _f(500e3, "height above the WGS-84 ellipsoid", minimum=100e3, maximum=5000e3)
+    heading_deg: float = _f(0.0, "azimuth of the inertial velocity from north, east positive",
+                            minimum=-360, maximum=360)
+    flight_path_deg: float = _f(0.0, "elevation of the inertial velocity above the local horizontal",
+                                minimum=-45, maximum=45)
+    speed_mps: float = _f(0.0, "inertial speed (0: the circular speed sqrt(GM / r))", minimum=0)
+    yaw_deg: float = _f(0.0, "initial turn of y_b about x_b from the along-track direction towards "
+                        "the orbit normal", minimum=-360, maximum=360)
+    yaw_rate_dps: float = _f(0.0, "rate of the pointing law's turn about x_b (the zenith axis)",
+                             minimum=-10, maximum=10)
+
+
+@dataclass
+class RenderConfig:
+    """What the renderer draws for this flight's images (``horizon-nav simulate``)."""
+    payload: bool = _f(True, "draw the launcher's payload structure into the images (an orbital "
+                       "camera sees none)")
+    limb_shift_m: float = _f(0.0, "lift of the rendered limb air (RenderOptions.limb_shift_m): the "
+                             "threshold edge sits this much above the default's 45 km",
+                             minimum=-100e3, maximum=100e3)
+
+
+@dataclass
 class SimulationConfig:
     duration_s: float = _f(600.0, "simulated flight time", minimum=0, exclusive_min=True)
     truth_rate_hz: float = _f(400.0, "rate of the stored truth; every sensor rate must divide it", minimum=0,
@@ -236,13 +268,15 @@ class Scenario:
     gps: GpsConfig = field(default_factory=GpsConfig)
     cameras: list = field(default_factory=list)
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
+    orbit: OrbitConfig | None = None   # None: a launch ([launch], [vehicle] stages)
+    render: RenderConfig = field(default_factory=RenderConfig)
     source: str = ""      # path of the file it was read from ("" when built in code)
     toml_text: str = ""   # the file's text (written into logs as metadata)
 
 
 _TABLES = {"launch": LaunchConfig, "vehicle": VehicleConfig, "spin": SpinConfig, "rcs": RcsConfig,
            "disturbance": DisturbanceConfig, "imu": ImuConfig, "gps": GpsConfig,
-           "simulation": SimulationConfig}
+           "simulation": SimulationConfig, "orbit": OrbitConfig, "render": RenderConfig}
 _LISTS = {"cameras": CameraConfig, "vehicle.stages": StageConfig}
 
 
@@ -366,7 +400,7 @@ def check_consistency(sc: Scenario, where: str) -> None:
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise UserError(f"{where}: {key} = {r}: must divide simulation.truth_rate_hz = "
                             f"{sim.truth_rate_hz} (sensors sample the stored truth)")
-    if not sc.vehicle.stages:
+    if not sc.vehicle.stages and sc.orbit is None:
         raise UserError(f"{where}: vehicle.stages: at least one [[vehicle.stages]] table is required")
     for i, s in enumerate(sc.vehicle.stages):
         if s.rise_s + s.tail_off_s > s.burn_time_s:
@@ -387,10 +421,12 @@ def check_consistency(sc: Scenario, where: str) -> None:
         if b <= a:
             raise UserError(f"{where}: gps.outages_s[{i}] = [{a}, {b}]: expected start < end")
     from nav import timescales
+    key, stamp = ("launch.time_utc", sc.launch.time_utc) if sc.orbit is None else ("orbit.epoch_utc",
+                                                                                    sc.orbit.epoch_utc)
     try:
-        timescales.parse_utc(sc.launch.time_utc)
+        timescales.parse_utc(stamp)
     except ValueError as exc:
-        raise UserError(f"{where}: launch.time_utc = {sc.launch.time_utc!r}: {exc}") from None
+        raise UserError(f"{where}: {key} = {stamp!r}: {exc}") from None
     for i, c in enumerate(sc.cameras):
         if c.fov_deg > 0:
             try:

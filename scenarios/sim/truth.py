@@ -38,7 +38,7 @@ import numpy as np
 from nav import earth, timescales
 from nav.rotation import matrix_to_quat
 from scenarios.sim import _truth_kernel as kern
-from scenarios.sim import atmosphere
+from scenarios.sim import atmosphere, orbit
 from scenarios.sim.scenario import G0, Scenario
 
 
@@ -156,8 +156,48 @@ def build_schedule(sc: Scenario, duration: float, grid_s: float = 0.02):
     return st, sv
 
 
+def orbit_schedule(sc: Scenario, duration: float, grid_s: float = 0.5):
+    """Vehicle schedule of a flight in orbit (``sc.orbit``): the payload's mass and inertia, no
+    thrust, drag, spin or fin torques, the pointing law's torque (:mod:`scenarios.sim.orbit`; it
+    turns by less than 1e-3 rad per ``grid_s`` at rates below 0.1 deg/s, so the linear
+    interpolation between rows is exact to ~1e-7 of the torque), the RCS and the disturbances as
+    configured."""
+    veh, rcs, dis = sc.vehicle, sc.rcs, sc.disturbance
+    st = np.arange(0.0, duration + 1.0 + grid_s, grid_s)
+    sv = np.zeros((len(st), kern.N_COLS))
+    sv[:, kern.C_MASS] = veh.payload_mass_kg
+    sv[:, kern.C_IXX:kern.C_IZZ + 1] = veh.inertia_payload_kgm2
+    sv[:, kern.C_IXY:kern.C_IYZ + 1] = veh.inertia_payload_products_kgm2
+    sv[:, kern.C_TORQUE:kern.C_TORQUE + 3] = orbit.pointing_torque(sc.orbit, st, inertia_tensor(veh))
+    sv[:, kern.C_RCS] = (rcs.enabled & (st >= rcs.start_s) & (st < rcs.end_s)).astype(float)
+    sv[:, kern.C_DISTURB] = (st >= dis.start_s).astype(float)
+    return st, sv
+
+
+def inertia_tensor(veh) -> np.ndarray:
+    """The payload's inertia tensor [kg m^2] (principal moments, products with the kernel's sign)."""
+    ixx, iyy, izz = veh.inertia_payload_kgm2
+    ixy, ixz, iyz = veh.inertia_payload_products_kgm2
+    return np.array([[ixx, -ixy, -ixz], [-ixy, iyy, -iyz], [-ixz, -iyz, izz]])
+
+
+def orbit_initial_state(sc: Scenario) -> np.ndarray:
+    """State at the epoch of ``sc.orbit``: position, e-frame velocity, the pointing law's attitude
+    and body rate (i = e at t = 0)."""
+    x, v_i = orbit.initial_inertial_state(sc.orbit)
+    R_ib, w = orbit.pointing_law(sc.orbit, np.zeros(1))
+    y0 = np.zeros(kern.N_STATE)
+    y0[0:3] = x
+    y0[3:6] = v_i - np.cross(earth.OMEGA_IE_E, x)
+    y0[6:10] = matrix_to_quat(R_ib[0])
+    y0[10:13] = w[0]
+    return y0
+
+
 def initial_state(sc: Scenario) -> np.ndarray:
-    """State at lift-off: on the launcher, at rest in e, rotating with the Earth."""
+    """State at lift-off: on the launcher, at rest in e, rotating with the Earth (or in orbit)."""
+    if sc.orbit is not None:
+        return orbit_initial_state(sc)
     la = sc.launch
     lat, lon = np.radians(la.lat_deg), np.radians(la.lon_deg)
     x0 = earth.geodetic_to_ecef(lat, lon, la.height_m)
@@ -189,7 +229,7 @@ def simulate_truth(sc: Scenario, duration: float | None = None) -> Truth:
     dt_out = 1.0 / sim.truth_rate_hz
     n_out = int(round(duration * sim.truth_rate_hz))
     dt = dt_out / sim.substeps
-    st, sv = build_schedule(sc, duration)
+    st, sv = build_schedule(sc, duration) if sc.orbit is None else orbit_schedule(sc, duration)
     rho_step, logrho = atmosphere.density_table()
     rcs = sc.rcs
     rcs_torque = np.array(rcs.torque_nm, dtype=float)
@@ -204,16 +244,28 @@ def simulate_truth(sc: Scenario, duration: float | None = None) -> Truth:
     kern.integrate(initial_state(sc), dt, n_out, int(sim.substeps), st, sv, rho_step, logrho, rcs_torque,
                    rcs_force, rcs_thr, dist, prm, Y, F, S)
     t = np.arange(n_out + 1) * dt_out
+    return Truth(t=t, x_e=Y[:, 0:3].copy(), v_e=Y[:, 3:6].copy(), q_eb=Y[:, 6:10].copy(),
+                 omega_ib_b=Y[:, 10:13].copy(), f_b=F, int_omega_b=Y[:, 13:16].copy(),
+                 int_f_b=Y[:, 16:19].copy(), rcs=S, liftoff_ns=timescales.parse_utc(start_utc(sc)),
+                 dt=dt_out, events=_events(sc))
+
+
+def start_utc(sc: Scenario) -> str:
+    """UTC of t = 0: the lift-off, or the epoch of a flight in orbit."""
+    return sc.launch.time_utc if sc.orbit is None else sc.orbit.epoch_utc
+
+
+def _events(sc: Scenario) -> dict:
+    """Event times [s] of the flight (only the start for a flight in orbit)."""
+    if sc.orbit is not None:
+        return {"epoch": 0.0}
     events = {"liftoff": 0.0, "nose_cone_separation": sc.vehicle.nose_cone_separation_s,
               "despin": sc.spin.despin_s, "motor_separation": sc.spin.motor_separation_s,
               "rcs_on": sc.rcs.start_s, "rcs_off": sc.rcs.end_s, "chute": sc.vehicle.chute_s}
     for i, s in enumerate(sc.vehicle.stages):
         events[f"stage{i + 1}_ignition"] = s.ignition_s
         events[f"stage{i + 1}_separation"] = s.separation_s
-    return Truth(t=t, x_e=Y[:, 0:3].copy(), v_e=Y[:, 3:6].copy(), q_eb=Y[:, 6:10].copy(),
-                 omega_ib_b=Y[:, 10:13].copy(), f_b=F, int_omega_b=Y[:, 13:16].copy(),
-                 int_f_b=Y[:, 16:19].copy(), rcs=S, liftoff_ns=timescales.parse_utc(sc.launch.time_utc),
-                 dt=dt_out, events=events)
+    return events
 
 
 def summary(tr: Truth) -> dict:

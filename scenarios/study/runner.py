@@ -63,7 +63,7 @@ class RunOutput:
 
 def _truth_key(sc, t_end: float) -> str:
     parts = [sc.launch, sc.vehicle, sc.spin, sc.rcs, sc.disturbance, sc.simulation]
-    return repr([dataclasses.asdict(p) for p in parts]) + f"|{t_end!r}"
+    return repr([dataclasses.asdict(p) for p in parts]) + f"|{sc.orbit!r}|{t_end!r}"   # orbit: None for a launch
 
 
 def cached_truth(sc, t_end: float):
