@@ -16,9 +16,11 @@ its shape. The figures of one case (`flight_figures`):
   nominal rendered height ``NOMINAL_EDGE_M + shift`` (the ATEK fisheye's threshold edge);
 * ``edge_smoothed_km`` and its 1 sigma: the smoother's ``h_e``;
 * ``nadir_rms_raw_deg``: the Earth vectors (fitted at the vision's prior height) against the true
-  nadir; ``nadir_rms_deg``: the same vectors moved to the smoothed height (``- g (h_s - h_ref)``);
-* ``containment_prior``: per-frame 3-sigma containment of the raw vectors with the prior's height
-  uncertainty (``P_c + sigma_prior^2 g g^T``: before anything is learned); ``containment``: of the
+  nadir; ``nadir_rms_deg``: the same vectors moved to the smoothed height (``- g (h_s - h_ref)``;
+  frames whose vector carries no sensitivity, ``frames - frames_with_sensitivity``, stay as they are);
+* ``containment_prior``: per-frame 3-sigma containment of the raw vectors with the height
+  uncertainty the vision had (``P_c + sigma_ref^2 g g^T``, ``sigma_ref`` = ``edge_ref_sigma_m``:
+  before anything is learned); ``containment``: of the
   moved vectors with the smoothed height's (``P_c + sigma_s^2 g g^T``), both against
   ``3 sqrt(lambda_max)``;
 * ``nees_in_band``: fraction of the forward filter's measurement epochs whose attitude NEES
@@ -112,7 +114,7 @@ def _angle_deg(a, b):
 
 
 def _containment(err_deg, P_c, g, sigma_m) -> float:
-    P = P_c + sigma_m**2 * np.einsum("ni,nj->nij", g, g)
+    P = P_c + np.einsum("n,ni,nj->nij", np.broadcast_to(np.square(sigma_m), len(g)), g, g)
     s3 = 3 * np.degrees(np.sqrt(np.linalg.eigvalsh(P)[:, -1]))
     return float(np.mean(err_deg <= s3))
 
@@ -151,19 +153,23 @@ def flight_figures(rr, case: Case | None = None) -> dict:
 
     v, s = rr.vectors, summarize(rr)
     m, e_true = _truth_rows(rr, "hor")
-    g, ref, e = v.dedge_c[m], v.edge_ref_m[m], v.e_c[m]
+    has = np.all(np.isfinite(v.dedge_c[m]), axis=1)
+    g = np.where(has[:, None], v.dedge_c[m], 0.0)
+    ref = np.where(has, v.edge_ref_m[m], 0.0)
+    sigma_ref = np.where(has, v.edge_ref_sigma_m[m], 0.0) if v.edge_ref_sigma_m is not None else None
+    e = v.e_c[m]
     r = e_true - e
-    h_truth = float(np.mean(ref) - np.sum(g * r) / np.sum(g * g))
+    h_truth = float(np.mean(ref[has]) - np.sum(g * r) / np.sum(g * g))
     edge = s["edge_height"]["camera_1"]
     h_s, sig_s = edge["smoothed_km"] * 1e3, edge["smoothed_sigma_km"] * 1e3
     moved = e - g * (h_s - ref)[:, None]
     err_raw, err = _angle_deg(e, e_true), _angle_deg(moved, e_true)
-    sigma_prior = _prior_sigma()
+    sigma_prior = _prior_sigma() if sigma_ref is None else sigma_ref
     mm, m_true = _truth_rows(rr, "moon")
     t_nees, nees = _nees(rr)
     inside = (nees >= NEES_BAND[0]) & (nees <= NEES_BAND[1])
     after = t_nees >= v.t_ns[mm].min() if len(mm) else np.zeros(len(nees), bool)
-    out = dict(frames=int(len(m)), edge_truth_km=h_truth / 1e3, edge_smoothed_km=h_s / 1e3, edge_smoothed_sigma_km=sig_s / 1e3,
+    out = dict(frames=int(len(m)), frames_with_sensitivity=int(has.sum()), edge_truth_km=h_truth / 1e3, edge_smoothed_km=h_s / 1e3, edge_smoothed_sigma_km=sig_s / 1e3,
                nadir_rms_raw_deg=float(np.sqrt(np.mean(err_raw**2))), nadir_rms_deg=float(np.sqrt(np.mean(err**2))),
                nadir_max_deg=float(err.max()),
                containment_prior=_containment(err_raw, v.P_c[m], g, sigma_prior),
