@@ -160,7 +160,7 @@ def test_profile_kernel_equals_the_array_version():
     n_ok = 0
     for image, ch in ((img, 2), (img, -1), (img[..., 1].copy(), 0)):
         cfg = LimbEdgeConfig(channel=ch)
-        sc, ok = _profile_crossings(image, uv, n, s, cfg)
+        sc, ok, _ = _profile_crossings(image, uv, n, s, cfg)
         sc_r, ok_r = profile_crossings_reference(image, uv, n, s, cfg)
         assert np.array_equal(ok, ok_r)
         assert np.max(np.abs(sc[ok] - sc_r[ok])) < 1e-4

@@ -284,6 +284,12 @@ class LimbOptions(_Checks):
         [0..1] of a Henyey-Greenstein aerosol lobe of asymmetry g [0..1),
         `vision.limb.phase_function`): its change along each profile is divided out
         (`vision.limb.phase_slope`), which matters near the Sun; weight 0 = Rayleigh only.
+    flank_width_max : a profile is used only when its flank, from the crossing down to 0.8 of the
+        peak, spans at most this many times the tangent height eq. (4) gives
+        (`vision.limb.flank_rise_height`): wider, its maximum is not the limb's but a surface
+        brighter than the limb's flat top (a high Sun, resolved by a narrow field of view), and
+        its crossing lies kilometres low. Measured ratios: 0.8-1.15 on rendered limbs (5-95 %),
+        1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test.
     flank : `FlankOptions`; calibrate : `CalibrationOptions` (clipped limb maxima).
     """
 
@@ -303,6 +309,7 @@ class LimbOptions(_Checks):
     refit_threshold_px: float = 2.0
     aerosol_weight: float = 0.25
     aerosol_g: float = 0.75
+    flank_width_max: float = 1.3
     flank: FlankOptions = FlankOptions()
     calibrate: CalibrationOptions = CalibrationOptions()
 
@@ -331,6 +338,8 @@ class LimbOptions(_Checks):
         self._within("aerosol_weight", 0.0, 1.0, "a weight in [0, 1]")
         if not (math.isfinite(self.aerosol_g) and 0.0 <= self.aerosol_g < 1.0):
             self._bad("aerosol_g", "an asymmetry parameter in [0, 1)")
+        if not (self.flank_width_max == 0.0 or 1.0 <= self.flank_width_max <= 10.0):
+            self._bad("flank_width_max", "0 (no test) or a ratio in [1, 10]")
 
 
 @dataclass(frozen=True)

@@ -85,7 +85,7 @@ from vision.nadir import per_ray
 _EARTH_A, _EARTH_B = _earth.A, _earth.B
 
 __all__ = ["LimbEdgeConfig", "limb_edge_points", "sun_elevation", "sun_path_ratio", "fraction_height_shift",
-           "profile_height_shift", "tangent_height_sun", "flank_heights", "phase_function", "phase_slope",
+           "profile_height_shift", "flank_rise_height", "surface_ratio", "resolved_sun_sine", "tangent_height_sun", "flank_heights", "phase_function", "phase_slope",
            "turn_towards"]
 
 
@@ -221,7 +221,7 @@ def _q32(u, s, n):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_keep, slope):
+def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_keep, slope, upper):
     """Fraction-of-peak crossing of every limb profile (`limb_edge_points`), one pass per profile.
 
     The profile of edge pixel i is sampled (`_bilinear1`) at ``uv_i + s_k n_i``. The steps are
@@ -236,9 +236,11 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     being monotone, the running maximum, the background and most of the drop tests use the
     clipped 8-bit-scale values: the power is evaluated at the background, the peak, the crossing
     samples and a drop test within 0.1 % of its bound only (float32 power: results equal to the
-    array version to its 1-ulp rounding). Returns the crossing offset sc (m,) [px along n_i] and
+    array version to its 1-ulp rounding). Returns the crossing offset sc (m,) [px along n_i],
     ok (m,): inside the image, a drop after the peak, a crossing found, peak below ``clip``,
-    peak above bg + 1e-6 (all in float32 as the array version). ``s`` is uniformly spaced
+    peak above bg + 1e-6 (all in float32 as the array version), and rise (m,) [px]: from the
+    crossing to the first crossing of ``bg + upper (peak - bg)`` towards the peak (the rise of
+    the profile's flank, `limb_edge_points`; NaN where not ok). ``s`` is uniformly spaced
     (``np.arange``). ``slope`` (m,): d ln P / ds of
     the phase function along each profile [1/px] (`phase_slope`): the samples are divided by
     ``exp(slope s)`` (``exp(slope s / gamma)`` on the 8-bit scale) before the scan, the clip test
@@ -247,6 +249,7 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
     S = s.shape[0]
     sc = np.zeros(m)
     ok = np.zeros(m, np.bool_)
+    rise = np.full(m, np.nan)
     c = np.empty(S, np.float32)          # clipped samples, 0..taken-1 (phase-corrected)
     f = np.empty(S, np.float32)          # their phase factors
     for i in range(m):
@@ -266,8 +269,8 @@ def _limb_profiles(img, ch, uv, nrm, s, i0, gamma, fraction, keep, clip, root_ke
                                          root_keep)
         if stop < 0:
             continue                      # no drop after the maximum: surface merges with the limb
-        sc[i], ok[i] = _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip)
-    return sc, ok
+        sc[i], ok[i], rise[i] = _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip, upper)
+    return sc, ok, rise
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -338,10 +341,11 @@ def _scan_to_drop(img, ch, u, v, nx, ny, s, i0, c, f, fk, rk, taken, gamma, keep
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip):
+def _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip, upper):
     """Fraction-of-peak crossing of one scanned profile of `_limb_profiles`: (offset sc [px along
-    the normal], ok). Not ok when the raw peak is clipped, the peak is not above the background,
-    or no sample before the peak lies below the target level."""
+    the normal], ok, rise [px] from it to the ``upper``-of-peak level). Not ok when the raw peak
+    is clipped, the peak is not above the background, or no sample before the peak lies below
+    the target level."""
     S = s.shape[0]
     eps = np.float32(1e-6)
     lo_m, hi_m = 1.0 - 1e-3, 1.0 + 1e-3
@@ -351,7 +355,7 @@ def _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip):
     for k in range(i0, stop + 1):
         raw = max(raw, c[k] / f[k])
     if not (_tone(raw, gamma) < clip and peak > bg + eps):
-        return 0.0, False
+        return 0.0, False, np.nan
     jpk = -1
     for k in range(i0, stop + 1):
         if c[k] >= vmax * lo_m and _tone(c[k], gamma) >= peak:
@@ -367,25 +371,41 @@ def _crossing(c, f, s, i0, stop, vmax, cmin, gamma, fraction, clip):
             a = k
             break
     if a < 0:
-        return 0.0, False
+        return 0.0, False, np.nan
     a = min(a, S - 2)
     if not a + 1 <= jpk:
-        return 0.0, False
+        return 0.0, False, np.nan
     La, Lb = _tone(c[a], gamma), _tone(c[a + 1], gamma)
     frac = (tgt - La) / (Lb - La)
     frac = min(max(frac, np.float32(0.0)), np.float32(1.0))
-    return s[a] + frac, True
+    sc = s[a] + frac
+    return sc, True, _level_after(c, s, a + 1, jpk, gamma, bg + upper * (peak - bg)) - sc
 
 
-def _profile_crossings(image, uv, n, s, config: LimbEdgeConfig, slope=None):
-    """(sc, ok) of every profile: `_limb_profiles` with the configuration's constants."""
+@numba.njit(cache=True, error_model="numpy")
+def _level_after(c, s, k0, jpk, gamma, level):
+    """Offset [px] of the first crossing of ``level`` (tone-curve units) by the samples k0..jpk of a
+    scanned profile, linear between samples (the peak's offset when none before it)."""
+    prev = _tone(c[k0 - 1], gamma)
+    for k in range(k0, jpk + 1):
+        cur = _tone(c[k], gamma)
+        if cur >= level:
+            fr = (level - prev) / (cur - prev) if cur > prev else 1.0
+            return s[k - 1] + min(max(fr, 0.0), 1.0)
+        prev = cur
+    return s[jpk]
+
+
+def _profile_crossings(image, uv, n, s, config: LimbEdgeConfig, slope=None, upper: float = 0.8):
+    """(sc, ok, rise) of every profile: `_limb_profiles` with the configuration's constants."""
     img = image if image.ndim == 3 else image[:, :, None]
     ch = -1 if (config.channel < 0 and img.shape[2] > 1) else (0 if img.shape[2] == 1 else config.channel)
     return _limb_profiles(img, ch, np.ascontiguousarray(uv, dtype=float), np.ascontiguousarray(n, dtype=float),
                           s, config.space_px, np.float32(config.gamma), np.float32(config.fraction),
                           np.float32(1.0 - config.min_drop), np.float32((config.clip_level / 255.0) ** config.gamma),
                           float((1.0 - config.min_drop) ** (1.0 / config.gamma)),
-                          np.zeros(len(uv)) if slope is None else np.ascontiguousarray(slope, dtype=float))
+                          np.zeros(len(uv)) if slope is None else np.ascontiguousarray(slope, dtype=float),
+                          np.float32(upper))
 
 
 def phase_function(cos_g, aerosol_weight: float = 0.0, aerosol_g: float = 0.75) -> np.ndarray:
@@ -480,7 +500,7 @@ def _unit_differences(q, p):  # pragma: no cover - numba
 
 def limb_edge_points(image: np.ndarray, camera: Camera, uv: np.ndarray, rays_c: np.ndarray,
                      e_c: np.ndarray, pixel_angle: np.ndarray, config: LimbEdgeConfig,
-                     jacobian: bool = False, phase_slope: np.ndarray | None = None):
+                     jacobian: bool = False, phase_slope: np.ndarray | None = None, rise_level: float = 0.0):
     """Move threshold-edge pixels to the fraction-of-peak crossing of the limb profile.
 
     Parameters
@@ -493,17 +513,21 @@ def limb_edge_points(image: np.ndarray, camera: Camera, uv: np.ndarray, rays_c: 
         (`vision.camera.unproject_jacobian`, computed with the rays in one call; NaN where not ok).
     phase_slope : (m,) d ln P / ds [1/px] of the scattering phase function along each profile
         (`phase_slope`); the profile is divided by it before the peak and the crossing are taken.
+    rise_level : in (fraction, 1): also return the (m,) rise [px] of each profile from its crossing
+        to the crossing of ``bg + rise_level (peak - bg)`` towards the peak (NaN where not ok):
+        the width of the flank, which eq. (4) predicts (`flank_rise_height`).
 
     Returns
     -------
     uv_new (m, 2), rays_new (m, 3) and ok (m,) bool: profiles that were usable (not clipped, with a
-    drop after the maximum, inside the image, a crossing found); with ``jacobian`` also J_new.
+    drop after the maximum, inside the image, a crossing found); with ``jacobian`` also J_new, with
+    ``rise_level`` also the rise.
     """
     uv = np.asarray(uv, dtype=float)
     m = uv.shape[0]
     n = _profile_normals(camera, uv, rays_c, e_c, pixel_angle)
     s = np.arange(-config.space_px, config.search_px + 1, dtype=float)
-    sc, ok = _profile_crossings(image, uv, n, s, config, phase_slope)
+    sc, ok, rise = _profile_crossings(image, uv, n, s, config, phase_slope, rise_level or 0.8)
     uv_new = uv + np.where(ok, sc, 0.0)[:, None] * n
     rays_new = rays_c.copy()
     J_new = np.full((m, 3, 2), np.nan) if jacobian else None
@@ -513,7 +537,8 @@ def limb_edge_points(image: np.ndarray, camera: Camera, uv: np.ndarray, rays_c: 
         else:
             rays_new[ok] = unproject(camera, uv_new[ok])
         ok &= np.isfinite(rays_new).all(axis=1)
-    return (uv_new, rays_new, ok, J_new) if jacobian else (uv_new, rays_new, ok)
+    out = (uv_new, rays_new, ok, J_new) if jacobian else (uv_new, rays_new, ok)
+    return out + (rise,) if rise_level else out
 
 
 @numba.njit(cache=True)
@@ -626,6 +651,22 @@ def _uf_table(fraction: float) -> tuple[np.ndarray, np.ndarray]:
         hi = np.where(big, mid, hi)
         lo = np.where(big, lo, mid)
     return lnc, 0.5 * (lo + hi)
+
+
+def flank_rise_height(mu_s: np.ndarray, fraction: float = 0.5, upper: float = 0.8,
+                      scale_height_m: float = 8000.0, radius_m: float = 6371e3) -> np.ndarray:
+    """Height [m] from the fraction-of-peak crossing down to the ``upper``-of-peak level on the
+    space side of the maximum of eq. (4), with the Sun-elevation sine ``mu_s`` at the tangent
+    point: ``H ln(u_upper(c) / u_f(c))`` (the table of eq. (5) for both levels). Like the shift
+    of eq. (5) it depends neither on the exposure, the phase function nor tau: the flank of a
+    limb maximum has this width in tangent height on any camera (6.5 km with the Sun overhead,
+    5.8 km at the horizon, for f = 0.5, upper = 0.8). A profile whose maximum is not the
+    limb's (a surface brighter than the limb's flat top, beyond the horizon) has a wider one."""
+    lnc, lnu_f = _uf_table(float(fraction))
+    _, lnu_q = _uf_table(float(upper))
+    c = sun_path_ratio(mu_s, scale_height_m, radius_m)
+    x = np.log(np.maximum(c, 1e-300))
+    return scale_height_m * (np.interp(x, lnc, lnu_q) - np.interp(x, lnc, lnu_f))
 
 
 def fraction_height_shift(mu_s: np.ndarray, fraction: float = 0.5, scale_height_m: float = 8000.0,
@@ -767,6 +808,59 @@ def _profile_crossing(mu_c, k, h_c, A, H, C, R, fraction, keep):
                 b = m
         return 0.5 * (a + b)
     return np.nan
+
+
+def surface_ratio(mu_s, fraction: float = 0.5, scale_height_m: float = 8000.0, height_m: float = 18300.0,
+                  radius_m: float = 6371e3) -> np.ndarray:
+    """Radiance of the limb at the surface (tangent height 0) over its maximum above it, eq. (4)
+    with the Sun-elevation sine ``mu_s`` at the tangent point (tau from the overhead-Sun crossing
+    height ``height_m`` by eq. (5), as in `profile_height_shift`).
+
+    With the Sun high the path ratio c of eq. (4) is small, the maximum ``u* = ln((1 + c)/c)``
+    lies within a few km of the surface and the radiance barely falls below it (2 % with the Sun
+    overhead, 19 % at 10 deg, 71 % at 2 deg with the defaults): where this ratio exceeds
+    ``1 - min_drop`` of the detector the limb has no drop of its own above the surface, so the
+    drop the detector finds lies on the Earth's disc, and the maximum before it can be a surface
+    brighter than the limb's flat top (case (b) of the module docstring). The maximum is taken
+    on a 50 m grid over 0..80 km (the top of eq. (4) is flat: < 1e-4 off)."""
+    mu = np.ascontiguousarray(mu_s, dtype=float).reshape(-1)
+    H = float(scale_height_m)
+    C = math.sqrt(math.pi * radius_m / (2.0 * H))
+    A = _tau_2c(float(fraction), H, float(height_m), float(radius_m))
+    out = np.empty(mu.size)
+    _surface_ratio_kernel(mu, A, H, C, float(radius_m), out)
+    return out.reshape(np.shape(mu_s))
+
+
+@functools.lru_cache(maxsize=16)
+def resolved_sun_sine(fraction: float = 0.5, scale_height_m: float = 8000.0, height_m: float = 18300.0,
+                      min_drop: float = 0.15, radius_m: float = 6371e3) -> float:
+    """Sine of the Sun elevation at the tangent point above which the limb's maximum is not
+    resolved from the surface: `surface_ratio` > ``1 - min_drop`` (it rises with the Sun in
+    daylight); 1 when it never exceeds it. Bisection to 1e-9 in the sine (12.4 deg with the
+    defaults)."""
+    keep = 1.0 - float(min_drop)
+    if surface_ratio(np.array([1.0]), fraction, scale_height_m, height_m, radius_m)[0] <= keep:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    while hi - lo > 1e-9:
+        mid = 0.5 * (lo + hi)
+        if surface_ratio(np.array([mid]), fraction, scale_height_m, height_m, radius_m)[0] > keep:
+            hi = mid
+        else:
+            lo = mid
+    return lo
+
+
+@numba.njit(cache=True)
+def _surface_ratio_kernel(mu, A, H, C, R, out):
+    """`surface_ratio` per Sun-elevation sine (0 when the whole profile is in the Earth's shadow)."""
+    for i in range(mu.size):
+        g0 = _limb_radiance(0.0, mu[i], 0.0, 0.0, A, H, C, R)
+        gmax = g0
+        for j in range(1, 1601):
+            gmax = max(gmax, _limb_radiance(50.0 * j, mu[i], 0.0, 0.0, A, H, C, R))
+        out[i] = g0 / gmax if gmax > 0.0 else 0.0
 
 
 @numba.njit(cache=True)

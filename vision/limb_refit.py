@@ -10,7 +10,8 @@ import numpy as np
 from vision.config import TargetConfig
 from vision.fitting import fit_cone, median, reselect_inliers, subsample
 from vision.limb import (LimbEdgeConfig, flank_heights, fraction_height_shift, limb_edge_points, phase_slope,
-                         profile_height_shift, tangent_height_sun, turn_towards)
+                         profile_height_shift, flank_rise_height, resolved_sun_sine, tangent_height_sun,
+                         turn_towards)
 from vision.oblate import LimbModel
 
 __all__ = ["tilt_corrected_attitude", "limb_refit"]
@@ -96,7 +97,10 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=Non
     lc = LimbEdgeConfig(fraction=tc.limb.fraction, channel=tc.limb.channel)
     R_t = tilt_corrected_attitude(R_ec, e_c, x_e)
     slope = phase_slope(rays_c, e_c, pa, R_t.T @ sun_e, tc.limb.aerosol_weight, tc.limb.aerosol_g)
-    uvn, rn, ok, Jn = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True, phase_slope=slope)
+    uvn, rn, ok, Jn, rise = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True, phase_slope=slope,
+                                             rise_level=_RISE_LEVEL)
+    if ok.any() and tc.limb.flank_width_max > 0:
+        ok[ok] = _flank_width_ok(rn[ok], rise[ok] * pa[ok], model_l, R_t, x_e, sun_e, tc, lc.min_drop)
     el = None
     twilight = False
     if ok.any():
@@ -152,6 +156,27 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=Non
     sigma_d = math.sqrt(tc.limb.height_sigma_m**2 + (tc.limb.sun_path_sigma * shift)**2
                         + (twi * tc.limb.twilight_sigma_m)**2)
     return model_l, fit, uvn[ok], rays2, J2, inl, sigma_d, used, shift, "limb", math.nan
+
+
+#: the upper level of the flank width test (`_flank_width_ok`): a fraction of the peak above the
+#: crossing's, below the flat top (which noise and JPEG steps make a poor marker)
+_RISE_LEVEL = 0.8
+
+
+def _flank_width_ok(rays_c, rise_rad, model_l: LimbModel, R_t, x_e, sun_e, tc: TargetConfig, min_drop: float):
+    """Usable limb profiles by their flank width: the tangent-height drop from each crossing
+    (rays_c, camera frame) down to the `_RISE_LEVEL`-of-peak level (``rise_rad`` [rad] down the
+    profile, `LimbModel.height_change`) at most ``limb.flank_width_max`` times the width eq. (4)
+    gives at the Sun elevation of its tangent point (`vision.limb.flank_rise_height`, attitude
+    R_t). A profile whose maximum lies on the Earth's disc (a cloud brighter than the limb's flat
+    top under a high Sun) rises past the limb's top to it: its flank is wider, and its crossing
+    lies kilometres low. Tested where the Sun is high enough for that (`vision.limb.resolved_sun_sine`:
+    the limb's own drop above the surface is then below the detector's ``min_drop``, so the drop
+    it finds lies on the disc); lower, the limb's own maximum is followed by its own drop."""
+    _, mu = tangent_height_sun(rays_c @ R_t.T, x_e, sun_e)
+    pred = flank_rise_height(mu, tc.limb.fraction, _RISE_LEVEL, tc.limb.scale_height_m)
+    mu_res = resolved_sun_sine(tc.limb.fraction, tc.limb.scale_height_m, tc.limb.height_m, min_drop)
+    return (mu <= mu_res) | (-model_l.height_change(-rise_rad) <= tc.limb.flank_width_max * pred)
 
 
 def _sun_path_shifts(rays_c, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdgeConfig, keep_all: bool = False):

@@ -1,0 +1,100 @@
+"""The limb edge on a narrow pinhole camera in orbit (scenarios/library/pinhole-orbit.toml: a 25 deg
+pinhole, 1280x960, 0.02 deg per pixel, at 500 km with the Sun ~75 deg above the limb's tangent
+points): the fraction-of-peak crossing must not be taken from a maximum on the Earth's disc.
+
+With the Sun that high the limb's own maximum is a flat top a few km above the surface (eq. (4)
+of `vision.limb`), and the sunlit clouds just beyond the horizon are brighter: the detector's
+maximum is then a cloud, the crossing of half of it lies 3-18 km low, on one part of the arc only,
+and the refit on that part turns the nadir by 1.2-1.4 deg (measured on the scenario's frames). The
+flank width test (`vision.limb_refit._flank_width_ok`) rejects those profiles."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vision.limb import flank_rise_height, sun_path_ratio
+
+
+def _crossing_u(c: float, level: float) -> float:
+    """u on the small-u side of the maximum of ``g(u) = (1 - e^-u) e^(-c u)`` where g = level x
+    max g (bisection in u on [1e-9, u*])."""
+    us = math.log((1.0 + c) / c)
+    gmax = -math.expm1(-us) * math.exp(-c * us)
+    lo, hi = 1e-9, us
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if -math.expm1(-mid) * math.exp(-c * mid) > level * gmax:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+@pytest.mark.parametrize("el_deg", [90.0, 45.0, 20.0, 8.0, 2.0, 0.0])
+def test_flank_rise_height_closed_form(el_deg):
+    """``H ln(u_0.8 / u_0.5)`` from a direct bisection on eq. (4) with c = `sun_path_ratio`;
+    tolerance 5 m: the table's linear interpolation over its ln c step of 0.025."""
+    mu = math.sin(math.radians(el_deg))
+    c = float(sun_path_ratio(np.array([mu]))[0])
+    want = 8000.0 * math.log(_crossing_u(c, 0.8) / _crossing_u(c, 0.5))
+    got = float(flank_rise_height(np.array([mu]), 0.5, 0.8, 8000.0)[0])
+    assert abs(got - want) < 5.0, (got, want)
+
+
+@pytest.fixture(scope="module")
+def orbit_frames():
+    """The scenario's first 12 s at one frame every 4 s (4 frames), simulated and rendered as
+    ``horizon-nav simulate`` does: [(jpeg, R_ec, x_e, t_ns)]."""
+    from scenarios.sim.render import flight_frame_truths, render_flight_images, scenario_render_options
+    from scenarios.sim.simulate import simulate_flight
+    from scenarios.study.orbit_mismatch import orbit_scenario
+
+    sc = orbit_scenario(duration_s=12.0, rate_hz=0.25)
+    fl = simulate_flight(sc, 0)
+    recs = flight_frame_truths(fl)
+    jpgs = [jpg for _, _, jpg in render_flight_images(fl, options=scenario_render_options(sc), progress=False)]
+    assert len(jpgs) == len(recs) >= 3
+    return [(j, r.R_ec, r.x_e, r.t_ns) for j, r in zip(jpgs, recs)]
+
+
+def _run(frames, config):
+    """(path, nadir error [deg] against the geocentric nadir, 3-sigma bound [deg]) per frame, with
+    the replay's prior (position, attitude, predicted Sun)."""
+    from nav import ephemeris
+    from scenarios.config.camera import load_camera
+    from scenarios.flightlog.jpeg import decode_frame
+    from vision.frontend import FramePrior, process_frame
+
+    cam = load_camera("scenarios/library/cameras/pinhole_25deg.toml")
+    out = []
+    for jpg, R_ec, x_e, t_ns in frames:
+        prior = FramePrior(x_e, R_ec, sun_c=R_ec.T @ ephemeris.sun_direction_e(t_ns, x_e))
+        res = process_frame(decode_frame(jpg), cam, config, prior=prior, rng=np.random.default_rng(0))
+        rec = res.record("earth")
+        assert rec is not None, res.reasons
+        e_true = R_ec.T @ (-np.asarray(x_e) / np.linalg.norm(x_e))
+        err = math.degrees(math.acos(min(1.0, float(rec.e_c @ e_true))))
+        out.append((res.targets["earth"].limb_path, err, 3.0 * rec.sigma_deg))
+    return out
+
+
+def test_pinhole_orbit_limb_edge_error(orbit_frames):
+    """The default front end with the Moon (scenarios/library/vision/moon.toml) on the rendered
+    frames: every nadir within 0.5 deg of the truth (issue 22's acceptance for narrow pinholes in
+    orbit; the threshold edge alone is 0.52 deg off here, its 15 km prior against the rendered
+    37 km at 0.0227 deg/km) and inside its own 3 sigma. Without the flank width test the same
+    frames give 1.2-1.4 deg on the limb path: checked here too, so that the frames still show
+    the case the test is about."""
+    import dataclasses
+
+    from scenarios.config.vision import load_vision_config
+
+    cfg = load_vision_config("scenarios/library/vision/moon.toml")
+    got = _run(orbit_frames, cfg)
+    for path, err, s3 in got:
+        assert err <= 0.5 and err <= s3, got
+    off = dataclasses.replace(cfg, earth=dataclasses.replace(
+        cfg.earth, limb=dataclasses.replace(cfg.earth.limb, flank_width_max=0.0)))
+    assert max(err for path, err, _ in _run(orbit_frames, off) if path == "limb") > 1.0
