@@ -43,6 +43,23 @@ def test_flank_rise_height_closed_form(el_deg):
     assert abs(got - want) < 5.0, (got, want)
 
 
+def test_profile_rise_on_a_ramp():
+    """The profile kernel's rise (`vision.limb._profile_crossings`) on a noise-free ramp: linear
+    brightness 0 at x = 10 rising to its peak 0.8 at x = 30, then a drop to 0.24 (the surface);
+    the 50 % crossing lies 10 px and the 80 % level 16 px from the edge pixel at x = 10: a rise
+    of 6 px. Tolerance 0.1 px: the 8-bit rounding of the tone curve (at most half a level, 0.7 %
+    of the brightness at 168/255, 0.07 px on this 0.04-per-px slope)."""
+    from vision.limb import LimbEdgeConfig, _profile_crossings
+
+    x = np.arange(64, dtype=float)
+    lin = 0.8 * np.where(x < 10, 0.0, np.where(x <= 30, (x - 10) / 20.0, 0.3))   # peak below the clip level
+    row = np.round(255.0 * lin ** (1 / 2.2)).astype(np.uint8)
+    img = np.repeat(np.repeat(row[None, :, None], 9, axis=0), 3, axis=2)
+    sc, ok, rise = _profile_crossings(img, np.array([[10.0, 4.0]]), np.array([[1.0, 0.0]]),
+                                      np.arange(-6, 41, dtype=float), LimbEdgeConfig(), upper=0.8)
+    assert ok[0] and abs(sc[0] - 10.0) < 0.1 and abs(rise[0] - 6.0) < 0.1, (sc, rise)
+
+
 @pytest.fixture(scope="module")
 def orbit_frames():
     """The scenario's first 12 s at one frame every 4 s (4 frames), simulated and rendered as
