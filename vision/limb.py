@@ -523,6 +523,9 @@ def limb_edge_points(image: np.ndarray, camera: Camera, uv: np.ndarray, rays_c: 
     drop after the maximum, inside the image, a crossing found); with ``jacobian`` also J_new, with
     ``rise_level`` also the rise.
     """
+    if rise_level and not config.fraction < rise_level < 1.0:
+        raise ValueError(f"limb_edge_points: rise_level = {rise_level}; expected 0 (none) or a level in "
+                         f"(fraction = {config.fraction}, 1)")
     uv = np.asarray(uv, dtype=float)
     m = uv.shape[0]
     n = _profile_normals(camera, uv, rays_c, e_c, pixel_angle)
