@@ -96,3 +96,53 @@ def test_sunlit_disagreeing_arcs_keep_the_vector(setup):
     assert arc is not None and arc.sigmas > cfg.earth.edge.arc_gate, arc
     err, s3 = _err_and_3sigma(rec, e_true)
     assert err <= min(s3, 0.2), (err, s3)
+
+
+def _arc_pixels(camera, e, alpha, phi_deg, rng, noise_px):
+    """Pixels (noisy, ``noise_px`` per axis) of the cone (e, alpha) at azimuths ``phi_deg``
+    about e, their unit rays and Jacobians (`vision.camera.unproject_jacobian`)."""
+    from nav._kernels import tangent_basis
+    from vision.camera import project, unproject_jacobian
+
+    T = tangent_basis(np.asarray(e, float))
+    phi = np.radians(phi_deg)
+    rays = (math.cos(alpha) * e[None, :] + math.sin(alpha) * (np.cos(phi)[:, None] * T[:, 0]
+                                                              + np.sin(phi)[:, None] * T[:, 1]))
+    uv = project(camera, rays) + rng.normal(0.0, noise_px, (phi.size, 2))
+    return unproject_jacobian(camera, uv)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 1.0])
+def test_second_arc_on_exact_cones(tilt_deg):
+    """Synthetic arcs on the ATEK fisheye from 400 km (spherical Earth, edge at 45 km), white pixel
+    noise of 0.3 px (below the model's R = 0.2 px^2): one cone cut in two arcs gives
+    m < 3 in every one of 20 draws (m is a 2-dof Mahalanobis distance: P(m > 3) = e^-4.5 = 1 %
+    with the model's noise, less with this noise); a second arc from a cone tilted by 1 deg (a
+    ground edge's typical 1-8 deg) gives m > 3 in every draw."""
+    from vision.camera import atek_camera
+    from vision.edge_check import second_arc
+    from vision.nadir import nadir_from_horizon
+    from vision.oblate import sphere_model
+
+    cam = atek_camera()
+    model = sphere_model(400e3, 6371e3, 45e3)
+    e = np.array([0.0, 0.62, 0.78])
+    e /= np.linalg.norm(e)
+    t = math.radians(tilt_deg)
+    e2 = np.array([math.sin(t), e[1] * math.cos(t), e[2] * math.cos(t)])
+    rng = np.random.default_rng(3)
+    ms = []
+    for _ in range(20):
+        r1, J1 = _arc_pixels(cam, e, model.alpha, np.linspace(-150.0, -110.0, 160), rng, 0.3)
+        r2, J2 = _arc_pixels(cam, e2, model.alpha, np.linspace(-105.0, -85.0, 80), rng, 0.3)
+        rays, J = np.vstack([r1, r2]), np.concatenate([J1, J2])
+        inl = np.arange(rays.shape[0]) < r1.shape[0]
+        fit = nadir_from_horizon(rays[inl], model.alpha)
+        arc = second_arc(model, rays, J, rays, inl, fit.e_c, model.alpha, 20e3, 3e3, 0.2, 100.0,
+                         2.0 * 9e-4, 0.15, 4e-6)
+        assert arc is not None
+        ms.append(arc.sigmas)
+    if tilt_deg == 0.0:
+        assert max(ms) < 3.0, ms
+    else:
+        assert min(ms) > 3.0, ms
