@@ -55,7 +55,7 @@ from vision.limb import tangent_height_sun
 from vision.nadir import angle_residual, nadir_from_horizon, within_cone
 from vision.oblate import LimbModel
 
-__all__ = ["SecondArc", "second_arc", "sun_elevation_deg"]
+__all__ = ["SecondArc", "arc_rays_needed", "second_arc", "sun_elevation_deg"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +92,12 @@ def _select(H2: np.ndarray, alpha: float, thr: np.ndarray, n_iter: int = 5):
     return fit, sel
 
 
+def arc_rays_needed(n_rays: int, min_fraction: float) -> int:
+    """Fewest rays of an edge of ``n_rays`` that make a second arc: ``min_fraction`` of them, at
+    least 20."""
+    return max(20, int(math.ceil(min_fraction * n_rays)))
+
+
 def second_arc(model: LimbModel, rays_c: np.ndarray, J: np.ndarray, H: np.ndarray, inliers: np.ndarray,
                e_fit: np.ndarray, alpha: float, sigma_h_m: float, along_sigma_m: float, R_px2: float, L_eff: float,
                threshold, min_fraction: float, max_residual: float) -> SecondArc | None:
@@ -117,7 +123,7 @@ def second_arc(model: LimbModel, rays_c: np.ndarray, J: np.ndarray, H: np.ndarra
     """
     inl = np.asarray(inliers, dtype=bool)
     out = ~inl
-    n_min = max(20, int(math.ceil(min_fraction * inl.size)))
+    n_min = arc_rays_needed(inl.size, min_fraction)
     if out.sum() < n_min or inl.sum() < n_min:
         return None
     thr = np.broadcast_to(np.asarray(threshold, dtype=float), (inl.size,))

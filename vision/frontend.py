@@ -65,7 +65,7 @@ from vision.candidates import detect
 from vision.config import (TARGETS, FramePrior, TargetConfig, VisionConfig, default_config,
                            resolve_search_lines)
 from vision.covariance import direction_covariance, largest_eigenvalue
-from vision.edge_check import second_arc, sun_elevation_deg
+from vision.edge_check import arc_rays_needed, second_arc, sun_elevation_deg
 from vision.edge_height import fit_edge_reselect
 from vision.fitting import alpha_sensitivity, fit_cone, median, reselect_inliers, subsample
 from vision.image_geometry import conic_polyline, fast_pixel_angle, gate_search_rows
@@ -289,17 +289,20 @@ def _wrong_edge(out: TargetResult, index: int, w, tc: TargetConfig, model, L_eff
     fit's by more than ``edge.arc_gate`` sigmas (one common edge height of sigma
     ``atmosphere_sigma_m``) and the fit's own arc lies where the Sun is below
     ``edge.arc_shadow_el_deg`` (``limb`` = (limb model, R_ec, x_e, Sun direction in e) of
-    `_limb_prior`; None: no rejection)."""
+    `_limb_prior`; None: no rejection). The Sun's elevation is checked first: on a sunlit arc the
+    second arc is not looked for (``out.second_arc`` stays None)."""
     if not (tc.edge.arc_gate > 0 and tc.atmosphere_sigma_m > 0 and limb is not None):
         return False
     _, rays_c, J, pa, H, fit, inl, _ = w
+    if int(inl.size - inl.sum()) < arc_rays_needed(inl.size, tc.edge.arc_min_fraction):
+        return False
+    el = sun_elevation_deg(rays_c[inl], limb[1], limb[2], limb[3])
+    if el >= tc.edge.arc_shadow_el_deg:     # a sunlit arc stands whatever a second arc says
+        return False
     arc = second_arc(model, rays_c, J, H, inl, fit.e_c, fit.alpha, tc.atmosphere_sigma_m, tc.edge.along_sigma_m,
                      tc.fit.R_px2, L_eff, tc.ransac.threshold_px * pa, tc.edge.arc_min_fraction, tc.max_residual)
     out.second_arc = arc
     if arc is None or arc.sigmas <= tc.edge.arc_gate:
-        return False
-    el = sun_elevation_deg(rays_c[inl], limb[1], limb[2], limb[3])
-    if el >= tc.edge.arc_shadow_el_deg:
         return False
     out.reason = (f"candidate {index}: two arcs of the edge give nadirs {math.degrees(arc.angle):.2f} deg apart "
                   f"({arc.sigmas:.1f} sigma > edge.arc_gate {tc.edge.arc_gate:g}) and the fitted one lies where the "
