@@ -30,7 +30,7 @@ import numba as nb
 import numpy as np
 
 from nav import ins
-from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
+from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R, skew
 from nav.earth import GM, OMEGA_E
 from nav.error_state import (StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
                              transition_columns)
@@ -194,6 +194,22 @@ class FilterState:
         """Back to a :meth:`snapshot` (in place: the views into ``nav`` and ``fed`` stay valid)."""
         self.P[:], self.nav[:], self.fed[:] = snap
         self._set_calibration(True)
+
+    def reset_rotations(self, dx) -> None:
+        """The covariance after the feedback of ``dx`` in the coordinates of the new estimate: the
+        fed-back rotations are composed, not added (``R_eb <- exp([psi x]) R_eb``, 003 eq. (50)
+        ``R_bc <- exp([psi_c x]) R_bc``), so the error left, ``log(exp([a x]) exp(-[d x]))`` for a
+        true error ``a`` and a correction ``d``, is ``a - d + 1/2 d x a`` to second order (the
+        Baker-Campbell-Hausdorff series): its covariance is ``G P G^T`` with
+        ``G = I + 1/2 [d x]`` on psi and on every estimated camera misalignment, I elsewhere."""
+        lay = self.layout
+        for g in lay.groups:
+            if g.name == "psi" or (g.estimated and g.name.startswith("psi_c_")):
+                sl = g.slice
+                G = np.eye(3) + 0.5 * skew(np.asarray(dx[sl], float))
+                self.P[:, sl] = self.P[:, sl] @ G.T
+                self.P[sl, :] = G @ self.P[sl, :]
+        self.P[:] = 0.5 * (self.P + self.P.T)
 
     def attitude_sigma(self) -> float:
         """Largest per-axis 1-sigma of the attitude error psi [rad]."""
