@@ -88,3 +88,26 @@ def test_reset_rotations_is_the_exact_error_transform():
     assert np.abs(got - mc).max() < 0.007 * scale
     assert np.abs(P[np.ix_(idx, idx)] - mc).max() > 0.01 * scale   # the test sees the difference
     assert np.allclose(st.P, st.P.T)
+
+
+def test_second_order_key_and_the_simulated_sensors_tuning_file():
+    """``[filter] second_order`` takes a boolean (anything else names the key); the shipped
+    tuning of the simulated ATEK sensors is table 3 with the simulator's white noises, the gyro
+    bias estimated and the second-order terms on (tests/test_navigator.py matched_tuning holds the
+    same noise values, derived there)."""
+    import pytest
+    from nav.tuning import tuning_from_toml
+    from scenarios.config.tuning import DEFAULT_TUNING_FILE, load_tuning
+    from tests.test_navigator import matched_tuning
+    assert tuning_from_toml("[filter]\nsecond_order = true\n").second_order
+    assert not Tuning().second_order
+    with pytest.raises(ValueError, match=r"\[filter\] second_order: expected true or false"):
+        tuning_from_toml("[filter]\nsecond_order = 1\n")
+    t = load_tuning(DEFAULT_TUNING_FILE.parent / "atek-sim.toml")
+    m = matched_tuning()
+    assert t.second_order and t.gyro_bias.mode == "E" and t.gyro_bias.sigma == m.gyro_bias.sigma
+    assert t.accel_white == pytest.approx(m.accel_white, rel=1e-12)
+    assert t.gyro_white == pytest.approx(m.gyro_white, rel=1e-4)
+    assert t.vector_white == pytest.approx(m.vector_white, rel=1e-3)
+    assert t.with_(second_order=False, gyro_bias=m.gyro_bias, accel_white=m.accel_white, gyro_white=m.gyro_white,
+                   vector_white=m.vector_white) == m
