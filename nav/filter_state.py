@@ -125,6 +125,9 @@ class FilterState:
         self.affine_estimated = any(g.estimated and g.name in _AFFINE for g in layout.groups)
         self.cal_m = np.empty((2, 4, 3))
         self._set_calibration(True)
+        #: first index of psi and of every estimated camera misalignment (:meth:`reset_rotations`)
+        self.rot_starts = np.array([g.slice.start for g in layout.groups
+                                    if g.name == "psi" or (g.estimated and g.name.startswith("psi_c_"))], np.int64)
         self.model = np.zeros(3 + self.n)
         self.model[:3] = (OMEGA_E, GM, tuning.correlation_time_s)
         self.model[3 + layout["dv"].start:3 + layout["dv"].stop] = tuning.accel_white ** 2
@@ -202,14 +205,7 @@ class FilterState:
         true error ``a`` and a correction ``d``, is ``a - d + 1/2 d x a`` to second order (the
         Baker-Campbell-Hausdorff series): its covariance is ``G P G^T`` with
         ``G = I + 1/2 [d x]`` on psi and on every estimated camera misalignment, I elsewhere."""
-        lay = self.layout
-        for g in lay.groups:
-            if g.name == "psi" or (g.estimated and g.name.startswith("psi_c_")):
-                sl = g.slice
-                G = np.eye(3) + 0.5 * skew(np.asarray(dx[sl], float))
-                self.P[:, sl] = self.P[:, sl] @ G.T
-                self.P[sl, :] = G @ self.P[sl, :]
-        self.P[:] = 0.5 * (self.P + self.P.T)
+        reset_rotations_kernel(self.P, np.asarray(dx, float), self.rot_starts)
 
     def attitude_sigma(self) -> float:
         """Largest per-axis 1-sigma of the attitude error psi [rad]."""
@@ -319,3 +315,30 @@ def extrapolate(nav, f, w, dt_m, W):
     v_m = v + acc * dt_m
     R_m = R_eb @ rotvec_to_R(w_eb * dt_m)
     return x_m, v_m, R_m, w_eb
+
+
+@nb.njit(cache=True)
+def reset_rotations_kernel(P, dx, starts):
+    """``P <- G P G^T`` in place for ``G = I + 1/2 [d x]`` on the 3-blocks at ``starts`` (``d`` the
+    block of ``dx``) and I elsewhere (:meth:`FilterState.reset_rotations`): the block's columns,
+    then its rows, then the mirror of the block's rows into its columns (symmetry kept exactly)."""
+    n = P.shape[0]
+    tmp = np.empty((n, 3))
+    for b in range(starts.size):
+        s = starts[b]
+        G = skew(0.5 * dx[s:s + 3])
+        for i in range(3):
+            G[i, i] += 1.0
+        for i in range(n):
+            for j in range(3):
+                tmp[i, j] = P[i, s] * G[j, 0] + P[i, s + 1] * G[j, 1] + P[i, s + 2] * G[j, 2]
+        for i in range(n):
+            for j in range(3):
+                P[i, s + j] = tmp[i, j]
+        for j in range(n):
+            for i in range(3):
+                tmp[j, i] = G[i, 0] * P[s, j] + G[i, 1] * P[s + 1, j] + G[i, 2] * P[s + 2, j]
+        for j in range(n):
+            for i in range(3):
+                P[s + i, j] = tmp[j, i]
+                P[j, s + i] = tmp[j, i]

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nav import _kernels
 from nav._kernels import skew
 from nav.rotation import rotvec_to_matrix, tangent_bases, tangent_basis
 
@@ -86,7 +87,8 @@ def second_order_noise(P, u_e, R_eb, R_bc, T) -> np.ndarray:
 
     (the product of the two exponentials; the second term is their commutator). Each tangent
     component ``T[:, k]^T R_bc^T q`` is a quadratic form ``x^T A_k x`` of ``x = [psi; psi_c]``, and
-    for ``x ~ N(0, P)`` its covariance is ``Cov_kl = 2 tr(A_k P A_l P)``. It matters while psi
+    for ``x ~ N(0, P)`` its covariance is ``Cov_kl = 2 tr(A_k P A_l P)``
+    (:func:`nav._kernels.quadratic_form_covariance` builds ``A_k`` in ``[psi_b; psi_c]``). It matters while psi
     and psi_c are both uncertain by a degree or more and the camera's attitude is not yet
     pinned (a 2 deg attitude with a 1 deg misalignment: about 0.05 deg, the size of the vision's
     error); once the vectors fix ``phi``, ``psi_c x psi_b = psi_c x phi`` is small and so is the term.
@@ -99,22 +101,10 @@ def second_order_noise(P, u_e, R_eb, R_bc, T) -> np.ndarray:
     """
     m = P.shape[0]
     v = R_eb.T @ np.asarray(u_e, float)
-    E = np.eye(m)
-    ii, jj = np.triu_indices(m, 1)
-    X = np.concatenate([E, E[ii] + E[jj]])      # unit and pair directions: the polarisation of x^T A x
-    psi_b = X[:, :3] @ R_eb
-    psi_c = X[:, 3:] if m == 6 else np.zeros_like(psi_b)
-    phi = psi_b + psi_c
-    q = 0.5 * np.cross(phi, np.cross(phi, v)) + 0.5 * np.cross(np.cross(psi_c, psi_b), v)
-    Q = q @ R_bc @ T                               # (rows, 2): x^T A_k x at each direction
-    d = Q[:m]
-    A = np.zeros((2, m, m))
-    A[:, np.arange(m), np.arange(m)] = d.T
-    off = 0.5 * (Q[m:] - d[ii] - d[jj])
-    A[:, ii, jj] = off.T
-    A[:, jj, ii] = off.T
-    AP = A @ P
-    return 2.0 * np.einsum("kij,lji->kl", AP, AP)
+    B = np.eye(m)
+    B[:3, :3] = R_eb.T
+    Pt = B @ P @ B.T                               # covariance of [psi_b; psi_c]
+    return _kernels.quadratic_form_covariance(Pt, v, R_bc @ np.asarray(T, float))
 
 
 def vector_rate(target: str, x_e, v_e, u_e, R_eb, R_bc, w_eb_b, target_pos_e=None) -> np.ndarray:
