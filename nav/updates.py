@@ -406,7 +406,7 @@ class CameraVectors:
         if edge is not None:
             H3[:, edge[0]] = self.edge[0][j]
         R3 = self.white2[target] * np.eye(3)
-        R2 = self._second_order(st, cam, u_e, R_m, R_bc, T) if self.tuning.second_order else 0.0
+        R2 = self._second_order(st, cam, u_e, R_m, R_bc, T) if self.tuning.second_order_noise else 0.0
         if has_z:
             H3[:, lay[zname]] = np.eye(3)
             self._restart_zeta(st, zname, t_m, P_c)
