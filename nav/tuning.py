@@ -125,7 +125,7 @@ class Tuning:
         corrected attitude (:meth:`nav.filter_state.FilterState.reset_rotations`), so that what
         the vectors told about the camera's attitude stays attached to it; the start with 003's
         2 deg attitude and 1 deg misalignments is then consistent (docs/tuning.md
-        "Second-order start"). False: the first-order reset (P unchanged).
+        "A consistent start"). False: the first-order reset (P unchanged).
     second_order_noise : bool
         Add to every camera vector's noise the covariance of its terms quadratic in (psi, psi_c)
         (a Gaussian second-order filter, :func:`nav.measurements.second_order_noise`).

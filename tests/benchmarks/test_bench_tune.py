@@ -12,7 +12,7 @@
 * ``tune.nees_inside_band_fraction``: the share of epochs whose Monte Carlo attitude NEES is
   inside its 95 % band, for the filter tuned by ``tune`` from one flight of the Monte Carlo's
   model (tests/test_navigator.py ``consistency_study``), starting from atek-sim.toml (the
-  simulated sensors' tuning, with the second-order start of docs/tuning.md).
+  simulated sensors' tuning, with the misalignment reset of docs/tuning.md).
 
 Wall-clock figures are recorded, never asserted."""
 from __future__ import annotations
