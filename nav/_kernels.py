@@ -133,3 +133,36 @@ def tangent_basis(e):
     T[0, 0], T[1, 0], T[2, 0] = a0, a1, a2
     T[0, 1], T[1, 1], T[2, 1] = e1 * a2 - e2 * a1, e2 * a0 - e0 * a2, e0 * a1 - e1 * a0
     return T
+
+
+@nb.njit(cache=True)
+def quadratic_form_covariance(P, v, W):
+    """Covariance (2, 2) of ``w_k . q(y)``, ``k = 0, 1`` (``w_k`` the columns of ``W`` (3, 2)), for
+    ``y = [psi_b; psi_c] ~ N(0, P)`` (``P`` (6, 6); (3, 3): ``psi_b`` alone) and the second-order
+    vector term ``q = 1/2 phi x (phi x v) + 1/2 (psi_c x psi_b) x v``, ``phi = psi_b + psi_c``
+    (:func:`nav.measurements.second_order_noise`). ``w . q = y^T A y`` with, for
+    ``S = (w v^T + v w^T)/2 - (w . v) I`` and ``N = [(v x w) x]``: ``1/2 S`` in every 3 x 3 block,
+    plus ``-N/4`` in the (psi_c, psi_b) block and ``N/4`` in the (psi_b, psi_c) block (from
+    ``1/2 (psi_c x psi_b) . (v x w) = -1/2 psi_c^T N psi_b``); ``Cov_kl = 2 tr(A_k P A_l P)``."""
+    m = P.shape[0]
+    AP = np.zeros((2, m, m))
+    for k in range(2):
+        w = W[:, k]
+        wv = w[0] * v[0] + w[1] * v[1] + w[2] * v[2]
+        S = 0.25 * (np.outer(w, v) + np.outer(v, w))
+        for i in range(3):
+            S[i, i] -= 0.5 * wv
+        A = np.zeros((m, m))
+        for bi in range(0, m, 3):
+            for bj in range(0, m, 3):
+                A[bi:bi + 3, bj:bj + 3] = S
+        if m == 6:
+            N = skew(np.cross(v, w))
+            A[3:6, 0:3] -= 0.25 * N
+            A[0:3, 3:6] += 0.25 * N
+        AP[k] = A @ P
+    C = np.empty((2, 2))
+    for k in range(2):
+        for l in range(2):
+            C[k, l] = 2.0 * np.sum(AP[k] * AP[l].T)
+    return C

@@ -30,7 +30,7 @@ import numba as nb
 import numpy as np
 
 from nav import ins
-from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
+from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R, skew
 from nav.earth import GM, OMEGA_E
 from nav.error_state import (StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
                              transition_columns)
@@ -125,6 +125,9 @@ class FilterState:
         self.affine_estimated = any(g.estimated and g.name in _AFFINE for g in layout.groups)
         self.cal_m = np.empty((2, 4, 3))
         self._set_calibration(True)
+        #: first index of every estimated camera misalignment (:meth:`reset_rotations`)
+        self.rot_starts = np.array([g.slice.start for g in layout.groups
+                                    if g.estimated and g.name.startswith("psi_c_")], np.int64)
         self.model = np.zeros(3 + self.n)
         self.model[:3] = (OMEGA_E, GM, tuning.correlation_time_s)
         self.model[3 + layout["dv"].start:3 + layout["dv"].stop] = tuning.accel_white ** 2
@@ -194,6 +197,26 @@ class FilterState:
         """Back to a :meth:`snapshot` (in place: the views into ``nav`` and ``fed`` stay valid)."""
         self.P[:], self.nav[:], self.fed[:] = snap
         self._set_calibration(True)
+
+    def reset_rotations(self, dx) -> None:
+        """The covariance of the estimated camera misalignments after the feedback of ``dx`` (called
+        after :func:`feedback_kernel`, ``nav`` holding the corrected attitude).
+
+        The vectors measure the camera's attitude error, in b ``phi = R_eb^T psi + psi_c``
+        (:func:`nav.measurements.second_order_noise`). The attitude error ``psi`` is in e, where a
+        vector's unobserved rotation (about the target's direction) does not depend on the
+        estimate; it is left as it is (the feedback only subtracts the correction). ``psi_c`` is in
+        b, and the feedback ``R_eb <- exp([d x]) R_eb`` turns b's view of e:
+        ``R_eb_new^T = exp(-[b x]) R_eb^T`` with ``b = R_eb^T d``. Transforming ``psi_c`` by
+        ``G = exp(-[b x])`` carries what the vectors told about ``phi`` over to the new estimate
+        exactly, ``R_eb_new^T psi + G psi_c = exp(-[b x]) (R_eb^T psi + psi_c)``; without it a
+        correction of degrees rotates a well-known ``phi`` into a poorly known direction and the
+        filter reads information about the attitude / misalignment split into the difference.
+        The misalignment's own correction ``d_c`` (``R_bc <- exp([d_c x]) R_bc``, 003 eq. (50))
+        adds the second-order ``I + 1/2 [d_c x]`` of composing rotations. ``P <- G P G^T`` with
+        ``G = exp(-[b x]) (I + 1/2 [d_c x])`` on each estimated ``psi_c``, I elsewhere."""
+        b = quat_to_R(self.nav[6:10]).T @ np.asarray(dx[self.layout["psi"]], float)
+        reset_rotations_kernel(self.P, np.asarray(dx, float), self.rot_starts, rotvec_to_R(-b))
 
     def attitude_sigma(self) -> float:
         """Largest per-axis 1-sigma of the attitude error psi [rad]."""
@@ -303,3 +326,32 @@ def extrapolate(nav, f, w, dt_m, W):
     v_m = v + acc * dt_m
     R_m = R_eb @ rotvec_to_R(w_eb * dt_m)
     return x_m, v_m, R_m, w_eb
+
+
+@nb.njit(cache=True)
+def reset_rotations_kernel(P, dx, starts, Rb):
+    """``P <- G P G^T`` in place for ``G = Rb (I + 1/2 [d x])`` on the 3-blocks at ``starts``
+    (``d`` the block of ``dx``) and I elsewhere (:meth:`FilterState.reset_rotations`): the
+    block's columns, then its rows, then the mirror of the block's rows into its columns
+    (symmetry kept exactly)."""
+    n = P.shape[0]
+    tmp = np.empty((n, 3))
+    for b in range(starts.size):
+        s = starts[b]
+        D = skew(0.5 * dx[s:s + 3])
+        for i in range(3):
+            D[i, i] += 1.0
+        G = Rb @ D
+        for i in range(n):
+            for j in range(3):
+                tmp[i, j] = P[i, s] * G[j, 0] + P[i, s + 1] * G[j, 1] + P[i, s + 2] * G[j, 2]
+        for i in range(n):
+            for j in range(3):
+                P[i, s + j] = tmp[i, j]
+        for j in range(n):
+            for i in range(3):
+                tmp[j, i] = G[i, 0] * P[s, j] + G[i, 1] * P[s + 1, j] + G[i, 2] * P[s + 2, j]
+        for j in range(n):
+            for i in range(3):
+                P[s + i, j] = tmp[j, i]
+                P[j, s + i] = tmp[j, i]

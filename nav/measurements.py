@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nav import _kernels
 from nav._kernels import skew
 from nav.rotation import rotvec_to_matrix, tangent_bases, tangent_basis
 
@@ -71,6 +72,39 @@ def vector_jacobians(target: str, x_e, u_e, R_eb, R_bc, target_pos_e=None):
         dist = np.linalg.norm(np.asarray(target_pos_e, float) - x)
         H_dx = -R_ce @ (np.eye(3) - np.outer(u_e, u_e)) / dist
     return H_dx, H_psi, H_psic
+
+
+def second_order_noise(P, u_e, R_eb, R_bc, T) -> np.ndarray:
+    """Covariance (2, 2) of the terms of a camera vector that are quadratic in the attitude error
+    psi (e) and, when ``P`` is (6, 6), the camera misalignment psi_c (b): the noise a Gaussian
+    second-order filter adds to the first-order model of 003 eqs. (47)-(49).
+
+    With ``v = R_eb^T u_e``, ``psi_b = R_eb^T psi`` and ``phi = psi_b + psi_c`` (the camera's
+    attitude error, in b), the true vector ``R_bc^T exp(-[psi_c x]) R_eb^T exp(-[psi x]) u_e`` is
+    the predicted one plus ``H [psi; psi_c]`` plus, to second order,
+
+        R_bc^T q,   q = 1/2 phi x (phi x v) + 1/2 (psi_c x psi_b) x v
+
+    (the product of the two exponentials; the second term is their commutator). Each tangent
+    component ``T[:, k]^T R_bc^T q`` is a quadratic form ``x^T A_k x`` of ``x = [psi; psi_c]``, and
+    for ``x ~ N(0, P)`` its covariance is ``Cov_kl = 2 tr(A_k P A_l P)``
+    (:func:`nav._kernels.quadratic_form_covariance` builds ``A_k`` in ``[psi_b; psi_c]``). It matters while psi
+    and psi_c are both uncertain by a degree or more and the camera's attitude is not yet
+    pinned (a 2 deg attitude with a 1 deg misalignment: about 0.05 deg, the size of the vision's
+    error); once the vectors fix ``phi``, ``psi_c x psi_b = psi_c x phi`` is small and so is the term.
+
+    Parameters
+    ----------
+    P : (3, 3) or (6, 6) prior covariance of psi, or of [psi; psi_c].
+    u_e : (3,) unit direction to the target in e; R_eb, R_bc : current attitude and mounting.
+    T : (3, 2) tangent basis of the predicted vector (:func:`tangent_basis`).
+    """
+    m = P.shape[0]
+    v = R_eb.T @ np.asarray(u_e, float)
+    B = np.eye(m)
+    B[:3, :3] = R_eb.T
+    Pt = B @ P @ B.T                               # covariance of [psi_b; psi_c]
+    return _kernels.quadratic_form_covariance(Pt, v, R_bc @ np.asarray(T, float))
 
 
 def vector_rate(target: str, x_e, v_e, u_e, R_eb, R_bc, w_eb_b, target_pos_e=None) -> np.ndarray:

@@ -540,6 +540,8 @@ class _Loop:
         dx = stack.apply(st, innovations, self.rejected, t_k)
         if prior is not None and dx is not None:
             dx = self.relinearise(k, kk, e0, e_ptr, prior, dx)
+        if dx is not None and tun.misalignment_reset:
+            st.reset_rotations(dx)
         if stack.triad:
             self.rec.triad_pairs(stack.triad)
         if rcv.watch and rcv.diverged(self.rejected, innovations, n0):

@@ -15,7 +15,8 @@ default, an unknown table or key is an error naming it::
                 white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon)
     [gps]       noise_scale
     [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
-    [filter]    max_cov_interval_s, gate_probability, first_update_iterations
+    [filter]    max_cov_interval_s, gate_probability, first_update_iterations,
+                second_order_noise, misalignment_reset
     [recovery]  enabled, gap_s, gap_samples, gated_fixes, velocity_sigma_m_s,
                 attitude_sigma_gap_deg, attitude_sigma_divergence_deg
 
@@ -119,6 +120,15 @@ class Tuning:
     first_update_att_sigma : float
         Largest per-axis attitude 1-sigma [rad] (prior of the epoch) at which the iterated update is
         still used (beyond it the linearisation error is of second order in the attitude error).
+    misalignment_reset : bool
+        After every feedback, carry the estimated camera misalignments' covariance over to the
+        corrected attitude (:meth:`nav.filter_state.FilterState.reset_rotations`), so that what
+        the vectors told about the camera's attitude stays attached to it; the start with 003's
+        2 deg attitude and 1 deg misalignments is then consistent (docs/tuning.md
+        "A consistent start"). False: the first-order reset (P unchanged).
+    second_order_noise : bool
+        Add to every camera vector's noise the covariance of its terms quadratic in (psi, psi_c)
+        (a Gaussian second-order filter, :func:`nav.measurements.second_order_noise`).
     targets : tuple of str
         Vector targets modelled: subset of ("hor", "sun", "moon").
     init_att_sigma, init_pos_sigma, init_vel_sigma : float
@@ -171,6 +181,8 @@ class Tuning:
     gps_noise_scale: float = 1.0
     first_update_iterations: int = 0
     first_update_att_sigma: float = math.radians(0.3)
+    misalignment_reset: bool = False
+    second_order_noise: bool = False
     targets: tuple = ("hor", "sun")
     init_att_sigma: float = math.radians(2.0)
     init_pos_sigma: float = 10.0
@@ -265,7 +277,7 @@ VECTOR_TARGETS = ("hor", "sun", "moon")
 _PER_TARGET = {"white_noise_": "vector_white_by_target", "cov_scale_": "vector_cov_scale_by_target"}
 _OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE),
                "vectors": {"gm_mode", "targets"} | {p + t for p in _PER_TARGET for t in VECTOR_TARGETS},
-               "initial": set(), "filter": {"first_update_iterations"}, "gps": set(),
+               "initial": set(), "filter": {"first_update_iterations", "misalignment_reset", "second_order_noise"}, "gps": set(),
                "recovery": {"enabled", "gated_fixes"}}
 
 
@@ -379,6 +391,12 @@ def tuning_from_dict(d: dict) -> Tuning:
     if "first_update_iterations" in d.get("filter", {}):
         kw["first_update_iterations"] = _count("filter", "first_update_iterations",
                                                d["filter"]["first_update_iterations"])
+    for key in ("misalignment_reset", "second_order_noise"):
+        if key in d.get("filter", {}):
+            v = d["filter"][key]
+            if not isinstance(v, bool):
+                raise ValueError(f"tuning [filter] {key}: expected true or false, got {v!r}")
+            kw[key] = v
     _recovery_choices(d.get("recovery", {}), kw)
     states = d.get("states", {})
     unknown = set(states) - set(_GROUPS)

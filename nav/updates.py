@@ -44,7 +44,7 @@ import numpy as np
 from nav.earth import OMEGA_E
 from nav.ephemeris import moon_position_e, sun_position_e
 from nav.filter_state import biases_into_calibration, extrapolate, feedback_kernel
-from nav.measurements import (predict_vector, target_direction_e, vector_covariance_problem,
+from nav.measurements import (predict_vector, second_order_noise, target_direction_e, vector_covariance_problem,
                               vector_covariance_problems, vector_jacobians, vector_rate)
 from nav.rotation import tangent_basis
 from nav.schmidt import GATED, NONFINITE, OK, REASONS, chi2_gate, update_kernel
@@ -410,6 +410,7 @@ class CameraVectors:
         if edge is not None:
             H3[:, edge[0]] = self.edge[0][j]
         R3 = self.white2[target] * np.eye(3)
+        R2 = self._second_order(st, cam, u_e, R_m, R_bc, T) if self.tuning.second_order_noise else 0.0
         if has_z:
             H3[:, lay[zname]] = np.eye(3)
             self._restart_zeta(st, zname, t_m, P_c)
@@ -418,7 +419,7 @@ class CameraVectors:
         stack.triad.setdefault(t_m, {})[target] = (R_bc @ e_c, u_e)
         stack.H[o:o + 2] = T.T @ H3
         stack.s[o:o + 2] = T.T @ (e_c - pred)
-        stack.R[o:o + 2, o:o + 2] = T.T @ R3 @ T
+        stack.R[o:o + 2, o:o + 2] = T.T @ R3 @ T + R2
         stack.add(t_m, target, cam, o, 2, None)
         if edge is not None and self.edge_data is not None:
             self._fill_height(j, t_m, cam, edge[0], st, stack)
@@ -438,6 +439,16 @@ class CameraVectors:
         stack.s[o] = h - st.edge_hat[cam]
         stack.R[o, o] = sd * sd
         stack.add(t_m, "edge", cam, o, 1, None)
+
+    def _second_order(self, st, cam: int, u_e, R_m, R_bc, T) -> np.ndarray:
+        """The noise of the terms quadratic in psi and the camera's psi_c (when it is a state) with
+        the prior covariance (:func:`nav.measurements.second_order_noise`), in the tangent plane."""
+        lay = self.layout
+        idx = list(range(lay["psi"].start, lay["psi"].stop))
+        if lay.has(lay.cam_name(cam)):
+            sl = lay[lay.cam_name(cam)]
+            idx += list(range(sl.start, sl.stop))
+        return second_order_noise(st.P[np.ix_(idx, idx)], u_e, R_m, R_bc, T)
 
     def _edge_column(self, j: int, cam: int, st):
         """``(state index of h_e, dedge_c (h_hat - edge_ref_m))`` for vector j, or None when the

@@ -470,6 +470,18 @@ class EdgeHeightOptions(_Checks):
         tightens the limb edge's prior to N(mean, offset sigma^2 + limb term^2) when
         |offset| is within this many of its sigmas (the limb model holds on this camera, up to
         the offset); else the wide prior stays. 0: never tightened.
+    arc_gate : the wrong-edge test (`vision.edge_check`): when the rays the winner's fit leaves
+        out form a second horizon arc, the two arcs' nadirs (each fitted with the threshold edge's
+        height prior) must agree within this many sigmas of their difference, else the frame has
+        no Earth vector when the fit's own arc also lies in the shadow (``arc_shadow_el_deg``):
+        near the terminator the dim ground below the horizon falls through the threshold first,
+        and the edge follows it instead of the limb. Needs the prior's position, attitude and Sun
+        direction (without them: no test). 0: no test.
+    arc_shadow_el_deg : the Sun's elevation [deg] at the fitted arc's tangent points below which a
+        disagreeing second arc rejects the fit; where the Sun is up the ground is lit to the
+        horizon and the disagreeing arc is the wrong one.
+    arc_min_fraction : the left-out rays are tested only when at least this fraction of the
+        edge's rays are a second arc's inliers (a few scattered outliers are not an arc).
     offset_min_frames : limb-edge frames with an arc's own height a camera needs for its offset.
     offset_resolution_m : the offset tightens the prior only when ``offset_gate`` of its sigmas
         are at most this [m]: the flight must be able to see a disagreement of this size between
@@ -490,9 +502,14 @@ class EdgeHeightOptions(_Checks):
     offset_gate: float = 3.0
     offset_min_frames: int = 5
     offset_resolution_m: float = 3000.0
+    arc_gate: float = 3.0
+    arc_min_fraction: float = 0.15
+    arc_shadow_el_deg: float = 0.0
 
     def __post_init__(self):
-        self._finite(("offset_gate", "offset_resolution_m"))
+        self._finite(("offset_gate", "offset_resolution_m", "arc_gate"))
+        self._within("arc_min_fraction", 0.01, 0.5, "a fraction in [0.01, 0.5]")
+        self._within("arc_shadow_el_deg", -90.0, 90.0, "an elevation in [-90, 90] deg")
         self._ints(("offset_min_frames",), lo=2)
         if not isinstance(self.estimate, bool):
             self._bad("estimate", "true or false")

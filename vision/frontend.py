@@ -65,6 +65,7 @@ from vision.candidates import detect
 from vision.config import (TARGETS, FramePrior, TargetConfig, VisionConfig, default_config,
                            resolve_search_lines)
 from vision.covariance import direction_covariance, largest_eigenvalue
+from vision.edge_check import arc_rays_needed, second_arc, sun_elevation_deg
 from vision.edge_height import conditional_on_height, fit_edge_reselect
 from vision.fitting import alpha_sensitivity, fit_cone, median, reselect_inliers, subsample
 from vision.image_geometry import conic_polyline, fast_pixel_angle, gate_search_rows
@@ -285,6 +286,34 @@ def _earth_out(out: TargetResult, res, uv, fit):
     return e_c, P, alpha, ef[:2], uv, inl, fit
 
 
+def _wrong_edge(out: TargetResult, index: int, w, tc: TargetConfig, model, L_eff: float, limb) -> bool:
+    """The wrong-edge test (`vision.edge_check`) on the refit ``w``: True, with ``out.reason``
+    set, when the rays the fit leaves out form a second horizon arc whose nadir disagrees with the
+    fit's by more than ``edge.arc_gate`` sigmas (one common edge height of sigma
+    ``atmosphere_sigma_m``) and the fit's own arc lies where the Sun is below
+    ``edge.arc_shadow_el_deg`` (``limb`` = (limb model, R_ec, x_e, Sun direction in e) of
+    `_limb_prior`; None: no rejection). The Sun's elevation is checked first: on a sunlit arc the
+    second arc is not looked for (``out.second_arc`` stays None)."""
+    if not (tc.edge.arc_gate > 0 and tc.atmosphere_sigma_m > 0 and limb is not None):
+        return False
+    _, rays_c, J, pa, H, fit, inl, _ = w
+    if int(inl.size - inl.sum()) < arc_rays_needed(inl.size, tc.edge.arc_min_fraction):
+        return False
+    el = sun_elevation_deg(rays_c[inl], limb[1], limb[2], limb[3])
+    if el >= tc.edge.arc_shadow_el_deg:     # a sunlit arc stands whatever a second arc says
+        return False
+    arc = second_arc(model, rays_c, J, H, inl, fit.e_c, fit.alpha, tc.atmosphere_sigma_m, tc.edge.along_sigma_m,
+                     tc.fit.R_px2, L_eff, tc.ransac.threshold_px * pa, tc.edge.arc_min_fraction, tc.max_residual)
+    out.second_arc = arc
+    if arc is None or arc.sigmas <= tc.edge.arc_gate:
+        return False
+    out.reason = (f"candidate {index}: two arcs of the edge give nadirs {math.degrees(arc.angle):.2f} deg apart "
+                  f"({arc.sigmas:.1f} sigma > edge.arc_gate {tc.edge.arc_gate:g}) and the fitted one lies where the "
+                  f"Sun is {el:.1f} deg high (< edge.arc_shadow_el_deg {tc.edge.arc_shadow_el_deg:g}): a brightness "
+                  f"edge on the dim ground, not the horizon")
+    return True
+
+
 def _baseline_fit(out: TargetResult, camera, cand, timings, name):
     """The general conic fit (`vision.conic.conic_nadir_fit`) on all pixels of the winner."""
     from vision.conic import conic_nadir_fit
@@ -327,9 +356,11 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     if w is None:
         return out
     uv, rays_c, J, pa, H, fit, inl, step = w
+    L_eff = max(1.0, tc.fit.L_px / step)   # correlation length in steps of the subsampled edge
+    if model is not None and _wrong_edge(out, win.index, w, tc, model, L_eff, limb):
+        return out
     t3 = time.perf_counter()
     timings[f"{name}.refit"] = t3 - t2
-    L_eff = max(1.0, tc.fit.L_px / step)   # correlation length in steps of the subsampled edge
     alpha = float(fit.alpha)
     edge = (math.nan, math.nan)
     if model is not None:

@@ -70,6 +70,7 @@ class FrameOutcome:
     edge_truth_m: float = math.nan
     from_arc: bool = False
     path: str = ""
+    reason: str = ""
 
 
 def _flight():
@@ -150,7 +151,7 @@ def run_case(case: Case, frames, cam, mask, config, cache: Path) -> list[FrameOu
         rec = res.record("earth")
         rec = refined.get(id(rec), rec)
         if rec is None:
-            out.append(FrameOutcome(t_s, k, False))
+            out.append(FrameOutcome(t_s, k, False, reason=res.reasons.get("earth", "")))
             continue
         tr = res.targets["earth"]
         err = math.degrees(math.acos(min(1.0, float(rec.e_c @ e_true))))
@@ -162,9 +163,10 @@ def run_case(case: Case, frames, cam, mask, config, cache: Path) -> list[FrameOu
 
 
 def summarise(case: Case, outcomes: list[FrameOutcome]) -> dict:
-    """Per-case figures: frames, found, nadir RMS / max [deg], 3-sigma containment, edge height
-    error (estimate - truth of the edge used) RMS [km] and its normalised RMS, arc-constrained
-    fraction, paths used."""
+    """Per-case figures: frames, found, frames rejected as a wrong edge (`vision.edge_check`;
+    counted as not found), nadir RMS / max [deg], 3-sigma containment over the found frames, edge
+    height error (estimate - truth of the edge used) RMS [km] and its normalised RMS,
+    arc-constrained fraction, paths used."""
     ok = [o for o in outcomes if o.found]
     err = np.array([o.err_deg for o in ok])
     inside = np.array([o.err_deg <= o.sigma3_deg for o in ok])
@@ -175,7 +177,7 @@ def summarise(case: Case, outcomes: list[FrameOutcome]) -> dict:
     for o in ok:
         paths[o.path] = paths.get(o.path, 0) + 1
     return dict(case=case.name, profile=case.profile, height_km=case.height_m / 1e3, frames=len(outcomes),
-                found=len(ok), nadir_rms_deg=float(np.sqrt(np.mean(err**2))) if ok else math.nan,
+                found=len(ok), wrong_edge=sum("two arcs" in o.reason for o in outcomes), nadir_rms_deg=float(np.sqrt(np.mean(err**2))) if ok else math.nan,
                 nadir_max_deg=float(err.max()) if ok else math.nan,
                 containment=float(inside.mean()) if ok else math.nan,
                 edge_err_rms_km=float(np.sqrt(np.mean(dh**2)) / 1e3) if dh.size else math.nan,
@@ -219,10 +221,10 @@ def main(argv=None) -> int:
     if a.frames < 2:
         ap.error(f"--frames {a.frames}: expected at least 2")
     rows = run_study(a.frames)
-    print(f"{'case':<18}{'found':>7}{'RMS deg':>9}{'max deg':>9}{'3sig in':>9}{'h est km':>10}"
+    print(f"{'case':<18}{'found':>7}{'wrong':>6}{'RMS deg':>9}{'max deg':>9}{'3sig in':>9}{'h est km':>10}"
           f"{'h true km':>10}{'dh rms km':>10}{'arc':>6}")
     for r in rows:
-        print(f"{r['case']:<18}{r['found']:>4}/{r['frames']:<2}{r['nadir_rms_deg']:>9.4f}{r['nadir_max_deg']:>9.4f}"
+        print(f"{r['case']:<18}{r['found']:>4}/{r['frames']:<2}{r['wrong_edge']:>6}{r['nadir_rms_deg']:>9.4f}{r['nadir_max_deg']:>9.4f}"
               f"{r['containment']:>9.3f}{r['edge_est_median_km']:>10.1f}{r['edge_truth_median_km']:>10.1f}"
               f"{r['edge_err_rms_km']:>10.2f}{r['from_arc']:>6.2f}  {r['paths']}")
     if a.out:

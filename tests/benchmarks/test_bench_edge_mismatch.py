@@ -15,7 +15,7 @@ def test_bench_edge_mismatch(bench, is_quick):
     std = [r for r in rows if r["profile"] == "standard"]
     clean = next(r for r in std if r["height_km"] == NOMINAL_EDGE_M / 1e3)
     worst = max(std, key=lambda r: r["nadir_rms_deg"])
-    table = {r["case"]: {k: r[k] for k in ("found", "frames", "nadir_rms_deg", "containment",
+    table = {r["case"]: {k: r[k] for k in ("found", "frames", "wrong_edge", "nadir_rms_deg", "containment",
                                            "edge_est_median_km", "edge_truth_median_km")} for r in rows}
     bench("vision.mismatch_nadir_rms_deg_max", worst["nadir_rms_deg"], "deg", baseline=clean["nadir_rms_deg"],
           baseline_name="nadir RMS at the default edge height (45 km), same frames, same run",
@@ -23,4 +23,5 @@ def test_bench_edge_mismatch(bench, is_quick):
     cmin = min(rows, key=lambda r: r["containment"])
     bench("vision.mismatch_containment_min", cmin["containment"], "fraction", baseline=0.97,
           baseline_name="acceptance: per-frame 3-sigma containment >= 0.97 at every edge height",
-          worst_case=cmin["case"])
+          worst_case=cmin["case"], found=cmin["found"], frames=cmin["frames"],
+          found_fraction_min=min(r["found"] / r["frames"] for r in rows))

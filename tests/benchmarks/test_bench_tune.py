@@ -3,14 +3,16 @@
 * ``tune.param_rel_err_max``: the largest relative error of the identified parameters on the
   simulated atek coast of tests/test_tune.py, whose true vector white noise, Gauss-Markov scale
   and GPS noise scale are set x0.3, x2.5 and x2 away from the prior;
-* ``tune.minutes_demo``: wall time of ``tune`` (the default parameters, 003 table 3 as prior) on
+* ``tune.minutes_demo``: wall time of ``tune`` (the default parameters, the simulated sensors'
+  tuning scenarios/library/tuning/atek-sim.toml as prior) on
   the demo flight's log with its vectors (the vision cached: the simulator's vectors), T+60..T+430
   (QUICK: T+60..T+130, three parameters);
 * ``filter.att_3sigma_final_deg_atek_tuned``: the final 3-sigma attitude bound of the filter with
   that estimate, with the RMS attitude error beside it;
 * ``tune.nees_inside_band_fraction``: the share of epochs whose Monte Carlo attitude NEES is
   inside its 95 % band, for the filter tuned by ``tune`` from one flight of the Monte Carlo's
-  model (tests/test_navigator.py ``consistency_study``), starting from 003 table 3.
+  model (tests/test_navigator.py ``consistency_study``), starting from atek-sim.toml (the
+  simulated sensors' tuning, with the misalignment reset of docs/tuning.md).
 
 Wall-clock figures are recorded, never asserted."""
 from __future__ import annotations
@@ -22,12 +24,15 @@ import time
 import numpy as np
 
 from nav.navigator import run
-from nav.tuning import Tuning
+from scenarios.config.tuning import DEFAULT_TUNING_FILE, load_tuning
 from scenarios.study.tune import DEFAULT_PARAMS, TuneInputs, tune
 from tests.test_navigator import (VEC_GM_DEG, VEC_WHITE_DEG, attitude_errors, consistency_study, flight_inputs,
                                   truth_init)
 from tests.test_tune import base_tuning, check_recovery, draw
 
+
+#: the tuning the simulated flights ship with: the prior of the demo and consistency benchmarks
+SIM_TUNING = DEFAULT_TUNING_FILE.parent / "atek-sim.toml"
 
 #: the parameters QUICK estimates (the vectors' white noise and the GPS scale)
 QUICK_PARAMS = ("vector_white_hor", "vector_white_sun", "gps_noise_scale")
@@ -55,7 +60,7 @@ def _demo(bench, is_quick):
     inp = TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal)
     t0 = time.perf_counter()
     names = QUICK_PARAMS if is_quick else DEFAULT_PARAMS
-    res = tune(inp, Tuning(), names)
+    res = tune(inp, load_tuning(SIM_TUNING), names)
     minutes = (time.perf_counter() - t0) / 60
     bench("tune.minutes_demo", minutes, "min", baseline=10.0, baseline_name="target 10 min on 2 cores",
           evaluations=res.evaluations, s_per_evaluation=res.seconds_per_evaluation,
@@ -84,13 +89,13 @@ def _consistency(bench, is_quick):
     fl = S.FlightData(sc, seed, t_end, tr, imu, errs, S.simulate_gps(tr, sc.gps, S.rng_for(seed, S.STREAM_GPS)),
                       S.simulate_cameras(sc, tr, seed))
     fi = flight_inputs(fl, 60.0, seed=seed, vec_sigma=math.radians(VEC_GM_DEG), white=math.radians(VEC_WHITE_DEG))
-    res = tune(TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal), Tuning(),
+    res = tune(TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal), load_tuning(SIM_TUNING),
                QUICK_PARAMS if is_quick else QUICK_PARAMS + ("gyro_white", "accel_white"))
     n = 4 if is_quick else 8
     st = consistency_study(n, t_end=t_end, tuning=res.tuning)
     bench("tune.nees_inside_band_fraction", st.inside_band_fraction("att"), "fraction", baseline=0.95,
           baseline_name="a consistent filter's share inside the 95 % band",
-          notes=f"{n} runs, atek T+60..T+{t_end:g}, tuning estimated from one flight starting at 003 table 3; "
+          notes=f"{n} runs, atek T+60..T+{t_end:g}, tuning estimated from one flight starting at atek-sim.toml; "
                 f"time-averaged attitude NEES {st.time_avg('att'):.2f} (band {st.band['att'][0]:.2f}.."
                 f"{st.band['att'][1]:.2f}); NIS means " + ", ".join(f"{k} {v:.2f}" for k, v in st.nis_mean.items()))
 
