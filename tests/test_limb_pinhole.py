@@ -43,6 +43,22 @@ def test_flank_rise_height_closed_form(el_deg):
     assert abs(got - want) < 5.0, (got, want)
 
 
+def test_surface_ratio_closed_form():
+    """`vision.limb.surface_ratio` with the Sun overhead against eq. (4) in closed form: u at the
+    surface ``A = u_0.5(c) exp(h_f / H)`` (the overhead crossing at h_f = 18.3 km), the maximum
+    at ``u* = ln((1 + c)/c)``, ratio ``g(A) / g(u*)``; tolerance 1e-4, the 50 m grid of the
+    maximum on a flat top. `resolved_sun_sine` is where the ratio meets 1 - min_drop."""
+    from vision.limb import resolved_sun_sine, surface_ratio
+
+    c = float(sun_path_ratio(np.array([1.0]))[0])
+    A = _crossing_u(c, 0.5) * math.exp(18300.0 / 8000.0)
+    us = math.log((1.0 + c) / c)
+    g = lambda u: -math.expm1(-u) * math.exp(-c * u)   # noqa: E731
+    assert abs(float(surface_ratio(np.array([1.0]))[0]) - g(A) / g(us)) < 1e-4
+    mu = resolved_sun_sine(0.5, 8000.0, 18300.0, 0.15)
+    assert 0.0 < mu < 1.0 and abs(float(surface_ratio(np.array([mu]))[0]) - 0.85) < 1e-6
+
+
 def test_profile_rise_on_a_ramp():
     """The profile kernel's rise (`vision.limb._profile_crossings`) on a noise-free ramp: linear
     brightness 0 at x = 10 rising to its peak 0.8 at x = 30, then a drop to 0.24 (the surface);

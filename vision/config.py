@@ -288,8 +288,10 @@ class LimbOptions(_Checks):
         peak, spans at most this many times the tangent height eq. (4) gives
         (`vision.limb.flank_rise_height`): wider, its maximum is not the limb's but a surface
         brighter than the limb's flat top (a high Sun, resolved by a narrow field of view), and
-        its crossing lies kilometres low. Measured ratios: 0.8-1.15 on rendered limbs (5-95 %),
-        1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test.
+        its crossing lies kilometres low. Tested where the Sun at the tangent point is above
+        `vision.limb.resolved_sun_sine` (12.4 deg with the defaults: the limb's own drop above
+        the surface is then less than the detector's 15 %). Measured ratios: 0.8-1.15 on rendered
+        limbs (5-95 %), 1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test.
     flank : `FlankOptions`; calibrate : `CalibrationOptions` (clipped limb maxima).
     """
 
