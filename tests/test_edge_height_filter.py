@@ -259,7 +259,7 @@ def test_summary_leaves_out_cameras_without_sensitivity():
 
 def test_image_replay_estimates_the_edge_height(ilog, tmp_path):
     """The image replay with ``[states.edge_height] mode = "E"`` (the short rendered atek log, 10
-    frames): the vision gives the Earth vectors of the limb edge (2 of 7 here) their sensitivity at
+    frames): the vision gives the Earth vectors of the limb edge ("limb" and "flank" paths) their sensitivity at
     their fitted height, and only those;
     the edge heights of the cameras with such vectors are in the summary with a smoothed sigma no larger than the 20 km
     prior's, and the solution log names the states ``h_e_1``, ``h_e_2``."""

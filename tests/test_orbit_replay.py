@@ -39,8 +39,9 @@ def test_orbit_simulate_and_replay(orbit_log, tmp_path):
       against the true nadir (the acceptance's bound for the narrow pinhole orbit) and every one is
       inside 3 sigma of P_c plus the smoothed height's variance (per-frame Earth nadir containment);
     - the smoothed attitude is inside its 3 sigma on every axis at every epoch, the forward filter's
-      final one too, and its attitude NEES is inside the 95 % chi-square band on >= 80 % of the
-      measurement epochs (one run: the epochs are correlated; measured 0.88);
+      final one too, and its attitude NEES is above the 95 % chi-square band on <= 5 % of the
+      measurement epochs (the filter not optimistic; below the band it is cautious: the edge
+      height is learned from the flank-path frames, whose heights vary frame to frame);
     - position RMS below 2 m (GPS at 3 m per axis, smoothed)."""
     rr = om.replay_log(orbit_log, tmp_path / "o.solution.mcap")
     f = om.flight_figures(rr)
@@ -53,7 +54,7 @@ def test_orbit_simulate_and_replay(orbit_log, tmp_path):
     from scenarios.replay.summary import summarize
     s = summarize(rr)
     assert s["truth"]["forward"]["att_final_inside_3sigma"]
-    assert f["nees_in_band"] >= 0.80, f
+    assert f["nees_above_band"] <= 0.05, f
     assert s["truth"]["smoothed"]["pos_rms_m"] < 2.0
 
 

@@ -229,7 +229,7 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
                                     tc.limb.refit_threshold_px * pa_med, tc.edge.along_sigma_m, tc.limb.height_m,
-                                    tc.edge.filter_state and lr[9] == "limb")
+                                    tc.edge.filter_state and lr[9] in ("limb", "flank"))
             res_t = None
             if _limb_consistent(res[4], sigma_l, tc) and _limb_checked(res[4], max(sigma_l, tc.edge.limb_prior_sigma_m), tc):
                 res_t = _threshold_covariance(model, fit, w, tc, L_eff, pa_med)

@@ -27,7 +27,8 @@ its shape. The figures of one case (`flight_figures`):
   ``psi^T P_psi^-1 psi`` (3 dof) is inside the chi-square 95 % band [0.216, 9.35], over the flight
   and from the first Moon vector on (``nees_in_band_moon``: before it the rotation about the
   nadir is seen by no vector, and a filter started at the truth has an error far inside its
-  2 deg initial sigma); ``nees_mean``;
+  2 deg initial sigma); ``nees_above_band``: the fraction above it (the filter optimistic);
+  ``nees_mean``;
 * ``att_rms_forward_deg``, ``att_rms_smoothed_deg`` against the truth; ``att_inside_3sigma_smoothed``:
   the fraction of the smoother's epochs whose attitude error is inside 3 sigma on every axis;
 * ``moon_found`` / ``moon_frames`` (frames whose true Moon centre is in the image), ``moon_rms_deg``.
@@ -174,7 +175,7 @@ def flight_figures(rr, case: Case | None = None) -> dict:
                nadir_max_deg=float(err.max()),
                containment_prior=_containment(err_raw, v.P_c[m], g, sigma_prior),
                containment=_containment(err, v.P_c[m], g, sig_s),
-               nees_in_band=float(np.mean(inside)),
+               nees_in_band=float(np.mean(inside)), nees_above_band=float(np.mean(nees > NEES_BAND[1])),
                nees_in_band_moon=float(np.mean(inside[after])) if after.any() else math.nan,
                nees_mean=float(np.mean(nees)), nees_epochs=int(len(nees)),
                att_rms_forward_deg=s["truth"]["forward"]["att_rms_deg"],
