@@ -358,14 +358,11 @@ def executor_mapper(jobs: int = 0, scheduler: str | None = None, client=None):
         from scenarios.study.execute import check_scheduler
         client = check_scheduler(scheduler)
     if client is not None:
-        def dask_map(fn, objs, pts):
-            ref = client.scatter(objs[0], broadcast=True) if objs else None
-            return client.gather(client.map(fn, [ref] * len(pts), pts, pure=False))
-        yield dask_map
+        yield lambda fn, *its: client.gather(client.map(fn, *its, pure=False))
     elif jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            yield lambda fn, objs, pts: list(pool.map(fn, objs, pts))
+            yield lambda fn, *its: list(pool.map(fn, *its))
     else:
         yield map
 
