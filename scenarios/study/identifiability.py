@@ -221,28 +221,35 @@ class IdentifiabilityResult:
                               "flights_lo": p.lam_lo.size, "flights_hi": p.lam_hi.size} for p in self.params])
 
 
+def reference_tune(sc, tun, names, t0: float, t1: float, seed: int = 0, mapper=map) -> dict:
+    """``tune``'s estimates (name -> Estimate) of the parameters of ``names`` the flight carries,
+    on one flight at ``tun``'s values."""
+    from scenarios.study.tune import available, tune
+    inp = simulate_inputs(sc, tun, seed, t0, t1)
+    kinds = ({"gps_pos", "gps_vel"} if inp.gps is not None else set()) | (
+        set(np.unique(inp.vectors.target).tolist()) if inp.vectors is not None else set())
+    params, _why = available(list(names), tun, kinds)
+    return tune(inp, tun, [p.name for p in params], mapper=mapper).by_name()
+
+
 def identifiability(sc, tun, names, *, runs: int = 200, control_runs: int = 40, factor: float = 2.0,
                     t0: float = 60.0, t1: float = 120.0, seed0: int = 10_000, mapper=map, progress=None,
-                    reference_seed: int = 0) -> IdentifiabilityResult:
+                    reference_seed: int = 0, reference: dict | None = None) -> IdentifiabilityResult:
     """The Monte Carlo of the module docstring for the parameters ``names``: ``tune`` on one
     flight (``reference_seed``) at ``tun``'s values, then ``runs`` flights (half at ``1/factor``,
     half at ``factor``) for each parameter it does not call identified and ``control_runs`` for
-    each it does (their power is ~1: a few flights show it). Parameters the flight cannot carry
+    each it does (their power is ~1: a few flights show it); ``reference`` (name -> Estimate of an
+    earlier :func:`reference_tune`) skips that tune. Parameters the flight cannot carry
     (no measurement they need, state off) are left out. ``mapper`` runs the flights (e.g.
     :func:`scenarios.study.tune.executor_mapper`); ``progress`` (tqdm-like) is advanced per flight."""
-    from scenarios.study.tune import available, tune
     for n, what in ((runs, "runs"), (control_runs, "control_runs")):
         if n < 4 or n % 2:
             raise ValueError(f"{what} = {n}: expected an even number >= 4 (half per hypothesis)")
     if not factor > 1.0:
         raise ValueError(f"factor = {factor}: expected > 1")
     t_start = time.perf_counter()
-    ref_inputs = simulate_inputs(sc, tun, reference_seed, t0, t1)
-    kinds = ({"gps_pos", "gps_vel"} if ref_inputs.gps is not None else set()) | (
-        set(np.unique(ref_inputs.vectors.target).tolist()) if ref_inputs.vectors is not None else set())
-    params, _why = available(list(names), tun, kinds)
-    names = [p.name for p in params]
-    ref = tune(ref_inputs, tun, names, mapper=mapper).by_name()
+    ref = reference if reference is not None else reference_tune(sc, tun, names, t0, t1, reference_seed, mapper)
+    names = [n for n in names if n in ref]
     n_of = {n: control_runs if ref[n].identified else runs for n in names}
     tasks = [McTask(n, h, seed0 + k) for n in names for h in ("lo", "hi") for k in range(n_of[n] // 2)]
     lam = []

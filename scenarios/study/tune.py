@@ -279,6 +279,7 @@ class Objective:
         self.gps, self.vectors = inputs.gps, inputs.vectors
         self.keys = None
         self.one_sided = {}
+        self.flat_se = {}   #: name -> standard error when the parameter was found flat and fixed
 
     def tuning(self, theta, *, gate: bool = False) -> Tuning:
         t = self.base
@@ -555,7 +556,8 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     while params and rounds < max_rounds:
         rounds += 1
         theta, f, iset, info, _, converged = optimise(obj, theta, max_iter=max_iter, mapper=mapper)
-        weak = _weak(info, _at_bound(obj, theta))
+        obj.flat_se = {}
+        weak = _weak(info, _at_bound(obj, theta), obj.flat_se, [p.name for p in params])
         weak &= ~_one_sided(obj, theta, f, weak, mapper)
         if weak.any() and not weak.all():
             theta, f, iset, info, se, converged = _refit(obj, theta, weak, max_iter, mapper)
@@ -600,10 +602,11 @@ def _one_sided(obj: Objective, theta, f: float, weak, mapper=map) -> np.ndarray:
     return out
 
 
-def _weak(info: np.ndarray, at_bound: np.ndarray) -> np.ndarray:
+def _weak(info: np.ndarray, at_bound: np.ndarray, flat_se: dict | None = None, names=()) -> np.ndarray:
     """The parameters the flight does not identify: repeatedly the one with the largest standard
     error above :data:`SE_LOG_FLAT` (the others' errors taken with it fixed), so that of two
-    parameters the flight only constrains together, one is fixed and the other estimated."""
+    parameters the flight only constrains together, one is fixed and the other estimated.
+    ``flat_se`` (name -> se) receives the standard error each had when it was fixed."""
     keep = ~at_bound
     weak = np.zeros(at_bound.size, bool)
     while keep.any():
@@ -613,6 +616,8 @@ def _weak(info: np.ndarray, at_bound: np.ndarray) -> np.ndarray:
             break
         worst = idx[int(np.argmax(se))]
         weak[worst], keep[worst] = True, False
+        if flat_se is not None:
+            flat_se[names[worst]] = float(se.max())
     return weak
 
 
@@ -648,6 +653,9 @@ def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> 
         se = np.full(len(params), np.inf)
         if keep.any():
             se[keep] = np.sqrt(_variances(info[np.ix_(keep, keep)]))
+        # a parameter fixed as flat reports the standard error that made it flat (finite when the
+        # flight carries some information: a factor-2 change is then seen in some flights)
+        se = np.array([obj.flat_se.get(p.name, x) if not k else x for p, x, k in zip(params, se, keep)])
         for p, th, s, b in zip(params, theta, se, atb):
             ident, weak = bool(s <= SE_LOG_IDENTIFIED) and not b, bool(SE_LOG_IDENTIFIED < s < SE_LOG_FLAT) and not b
             reason = None
