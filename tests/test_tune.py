@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
-from nav.navigator import GpsData
+from nav.navigator import GpsData, VectorData
 from nav.tuning import Tuning, tuning_from_toml
 from nav.updates import Innovation
 from scenarios.study.tune import PARAMS, Estimate, TuneInputs, TuneResult, available, tune, tuning_toml
@@ -101,7 +101,7 @@ def narrow_coast():
 
 
 def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float, *, gm_deg: float = VEC_GM_DEG,
-         imu: dict | None = None):
+         imu: dict | None = None, sun_at: float | None = None):
     """Navigator inputs whose true vector white noise is ``white`` (both targets), whose true
     Gauss-Markov vector error is ``pc_scale`` times what P_c reports (``gm_deg``), and whose GPS
     errors are ``gps_scale`` times the simulator's (the logged covariances unchanged). ``imu``
@@ -120,6 +120,16 @@ def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float, *, gm_d
         fl = dataclasses.replace(fl, imu=sim, imu_errors=errs)
     fi = flight_inputs(fl, 60.0, seed=seed, vec_sigma=math.radians(gm_deg) * pc_scale, white=white)
     fi.vectors.P_c /= pc_scale ** 2
+    if sun_at is not None:   # the Sun's vectors from a second draw with its own white noise and scale 1
+        v, s = fi.vectors, flight_inputs(fl, 60.0, seed=seed + 50_000, vec_sigma=math.radians(gm_deg),
+                                         white=sun_at).vectors
+        keep = v.target != "sun"
+        fi.vectors = VectorData(*[np.concatenate([np.asarray(a)[keep], np.asarray(b)[s.target == "sun"]])
+                                  for a, b in zip((v.t_ns, v.camera, v.target, v.e_c, v.P_c),
+                                                  (s.t_ns, s.camera, s.target, s.e_c, s.P_c))])
+        o = np.argsort(fi.vectors.t_ns, kind="stable")
+        fi.vectors = VectorData(*[np.asarray(a)[o] for a in (fi.vectors.t_ns, fi.vectors.camera, fi.vectors.target,
+                                                             fi.vectors.e_c, fi.vectors.P_c)])
     g = fi.gps
     xt, vt = truth_at(fl.truth, (g.t_ns - fl.liftoff_ns) / NS)
     gps = GpsData(g.t_ns, xt + gps_scale * (g.x_e - xt), g.P_x, vt + gps_scale * (g.v_e - vt), g.P_v)
@@ -178,9 +188,11 @@ def test_missing_measurements_named(coast):
 STUDY_PARAMS = ("vector_white_hor", "vector_cov_scale_hor", "gps_noise_scale", "gyro_white", "accel_white")
 
 
-def coverage_study(fl, n_draws: int, *, white0: float, gm_deg: float, seed0: int = 2024) -> dict:
+def coverage_study(fl, n_draws: int, *, white0: float, gm_deg: float, seed0: int = 2024, only=None) -> dict:
     """``n_draws`` draws whose true :data:`STUDY_PARAMS` are drawn log-uniformly x0.3..x3 away from
-    the prior (``base_tuning(white0)``), each tuned from the prior. Returns per status the
+    the prior (``base_tuning(white0)``), each tuned from the prior (the Sun's vectors, whose
+    parameters are not estimated, drawn at the prior); ``only``: the draws to run (default all).
+    Returns per status the
     ``(draw, parameter, relative error, |log error| / se, se)`` cases."""
     from scenarios.study.tune import tune
     rng = np.random.default_rng(seed0)
@@ -189,9 +201,12 @@ def coverage_study(fl, n_draws: int, *, white0: float, gm_deg: float, seed0: int
     cases = {"identified": [], "weak": [], "unidentified": [], "one-sided": []}
     for k in range(n_draws):
         f = dict(zip(STUDY_PARAMS, np.exp(rng.uniform(math.log(0.3), math.log(3.0), len(STUDY_PARAMS)))))
+        if only is not None and k not in only:
+            continue
         truth = {n: f[n] * prior[n] for n in STUDY_PARAMS}
         inp = draw(fl, 100 + k, truth["vector_white_hor"], f["vector_cov_scale_hor"], f["gps_noise_scale"],
-                   gm_deg=gm_deg, imu={"gyro_white": truth["gyro_white"], "accel_white": truth["accel_white"]})
+                   gm_deg=gm_deg, imu={"gyro_white": truth["gyro_white"], "accel_white": truth["accel_white"]},
+                   sun_at=white0)
         res = tune(inp, base, list(STUDY_PARAMS))
         for n, e in res.by_name().items():
             err = math.log(e.value / truth[n])

@@ -23,7 +23,9 @@ For a log-parameter whose estimate is Gaussian with standard error ``se`` the po
 (:func:`predicted_power`): with factor 2 it is 0.64 at ``se = ln 2``, ``tune``'s flat-likelihood
 threshold, below it for a larger ``se``, and 1 - 1e-9 at ``se = ln(1.3) / 3``, the threshold
 of *identified*. :func:`identifiability` also runs ``tune`` on one flight at the tuning's values
-and reports its verdict and standard error beside the Monte Carlo power.
+and reports its verdict and standard error beside the Monte Carlo power. The test knows the other
+parameters (their true values), so its power bounds from above what a flight can do without them,
+and is at least the power predicted from ``tune``'s marginal standard error.
 
 The flights are simulated from the filter's own model, without the vision (vectors are the true
 directions plus the vision error model, :func:`scenarios.study.runner.simulated_vectors`): IMU
