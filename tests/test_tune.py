@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
-from nav.navigator import GpsData
+from nav.navigator import GpsData, VectorData
 from nav.tuning import Tuning, tuning_from_toml
 from nav.updates import Innovation
 from scenarios.study.tune import PARAMS, Estimate, TuneInputs, TuneResult, available, tune, tuning_toml
@@ -69,6 +69,11 @@ def test_tuning_toml_keys_round_trip():
 
 PRIOR_WHITE = 0.002          #: prior vector white noise (unit-vector units) of both targets
 VEC_GM_DEG = 0.05            #: the vision error the simulated P_c reports (Gauss-Markov, T_c = 20 s)
+#: the narrow camera (pinhole_25deg, 0.02 deg per pixel) measures the horizon to ~1 pixel
+NARROW_WHITE, NARROW_GM_DEG = 0.0005, 0.02
+DEG_RTH = math.radians(1.0) / 60.0   #: deg/sqrt(h) -> rad/sqrt(s)
+DEG_H = math.radians(1.0) / 3600.0   #: deg/h -> rad/s
+MG = 1e-3 * 9.80665
 
 
 @pytest.fixture(scope="module")
@@ -78,22 +83,62 @@ def coast():
     return simulate_flight(load_scenario("atek"), seed=7, duration=200.0)
 
 
-def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float):
+def narrow_scenario():
+    """atek with a single narrow-field camera (pinhole_25deg: 1280x960 px, 25 deg horizontal FOV)
+    looking 5 deg aft of the radial direction: the horizon is in view in every frame of the coast,
+    the Sun in none (a horizon-sensor geometry)."""
+    import dataclasses
+    from scenarios.sim.scenario import load_scenario
+    sc = load_scenario("atek")
+    cam = dataclasses.replace(sc.cameras[0], intrinsics="pinhole_25deg", depression_deg=5.0)
+    return dataclasses.replace(sc, cameras=[cam])
+
+
+@pytest.fixture(scope="module")
+def narrow_coast():
+    from scenarios.sim.simulate import simulate_flight
+    return simulate_flight(narrow_scenario(), seed=7, duration=200.0)
+
+
+def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float, *, gm_deg: float = VEC_GM_DEG,
+         imu: dict | None = None, sun_at: float | None = None):
     """Navigator inputs whose true vector white noise is ``white`` (both targets), whose true
-    Gauss-Markov vector error is ``pc_scale`` times what P_c reports, and whose GPS errors are
-    ``gps_scale`` times the simulator's (the logged covariances unchanged)."""
+    Gauss-Markov vector error is ``pc_scale`` times what P_c reports (``gm_deg``), and whose GPS
+    errors are ``gps_scale`` times the simulator's (the logged covariances unchanged). ``imu``
+    (``{"gyro_white": rad/sqrt(s), "accel_white": m/s^2/sqrt(Hz)}``, optionally ``"gyro_gm"`` [rad/s]
+    and ``"gyro_gm_tau"`` [s] of a Gauss-Markov drift) redraws the IMU with those noises and without the errors the filter does not model as such (gyro quantisation and
+    the 6-element axis misalignment, of which the filter carries 3)."""
+    import dataclasses
+    from scenarios.sim import simulate as S
     from scenarios.sim.gps import truth_at
-    fi = flight_inputs(fl, 60.0, seed=seed, vec_sigma=math.radians(VEC_GM_DEG) * pc_scale, white=white)
+    if imu is not None:
+        cfg = dataclasses.replace(fl.scenario.imu, gyro_noise_deg_rt_h=imu["gyro_white"] / DEG_RTH,
+                                  accel_noise_mg_rt_hz=imu["accel_white"] / MG, gyro_resolution_dps=0.0,
+                                  gyro_misalignment_mrad=0.0, gyro_gm_deg_h=imu.get("gyro_gm", 0.0) / DEG_H,
+                                  gyro_gm_tau_s=imu.get("gyro_gm_tau", 100.0))
+        sim, errs = S.simulate_imu(fl.truth, cfg, S.rng_for(seed, S.STREAM_IMU))
+        fl = dataclasses.replace(fl, imu=sim, imu_errors=errs)
+    fi = flight_inputs(fl, 60.0, seed=seed, vec_sigma=math.radians(gm_deg) * pc_scale, white=white)
     fi.vectors.P_c /= pc_scale ** 2
+    if sun_at is not None:   # the Sun's vectors from a second draw with its own white noise and scale 1
+        v, s = fi.vectors, flight_inputs(fl, 60.0, seed=seed + 50_000, vec_sigma=math.radians(gm_deg),
+                                         white=sun_at).vectors
+        keep = v.target != "sun"
+        fi.vectors = VectorData(*[np.concatenate([np.asarray(a)[keep], np.asarray(b)[s.target == "sun"]])
+                                  for a, b in zip((v.t_ns, v.camera, v.target, v.e_c, v.P_c),
+                                                  (s.t_ns, s.camera, s.target, s.e_c, s.P_c))])
+        o = np.argsort(fi.vectors.t_ns, kind="stable")
+        fi.vectors = VectorData(*[np.asarray(a)[o] for a in (fi.vectors.t_ns, fi.vectors.camera, fi.vectors.target,
+                                                             fi.vectors.e_c, fi.vectors.P_c)])
     g = fi.gps
     xt, vt = truth_at(fl.truth, (g.t_ns - fl.liftoff_ns) / NS)
     gps = GpsData(g.t_ns, xt + gps_scale * (g.x_e - xt), g.P_x, vt + gps_scale * (g.v_e - vt), g.P_v)
     return TuneInputs(fi.imu, truth_init(fi), gps, fi.vectors, fi.R_bc_nominal)
 
 
-def base_tuning() -> Tuning:
+def base_tuning(white: float = PRIOR_WHITE) -> Tuning:
     """The simulated IMU's matched tuning with the prior vector white noise."""
-    return matched_tuning().with_(vector_white=PRIOR_WHITE)
+    return matched_tuning().with_(vector_white=white)
 
 
 def check_recovery(res, truth: dict):
@@ -140,29 +185,81 @@ def test_missing_measurements_named(coast):
         available(["nonsense"], base_tuning(), set())
 
 
+STUDY_PARAMS = ("vector_white_hor", "vector_cov_scale_hor", "gps_noise_scale", "gyro_white", "accel_white")
+
+
+def coverage_study(fl, n_draws: int, *, white0: float, gm_deg: float, seed0: int = 2024, only=None) -> dict:
+    """``n_draws`` draws whose true :data:`STUDY_PARAMS` are drawn log-uniformly x0.3..x3 away from
+    the prior (``base_tuning(white0)``), each tuned from the prior (the Sun's vectors, whose
+    parameters are not estimated, drawn at the prior); ``only``: the draws to run (default all).
+    Returns per status the
+    ``(draw, parameter, relative error, |log error| / se, se)`` cases."""
+    from scenarios.study.tune import tune
+    rng = np.random.default_rng(seed0)
+    base = base_tuning(white0)
+    prior = {n: PARAMS[n].get(base) for n in STUDY_PARAMS}
+    cases = {"identified": [], "weak": [], "unidentified": [], "one-sided": []}
+    for k in range(n_draws):
+        f = dict(zip(STUDY_PARAMS, np.exp(rng.uniform(math.log(0.3), math.log(3.0), len(STUDY_PARAMS)))))
+        if only is not None and k not in only:
+            continue
+        truth = {n: f[n] * prior[n] for n in STUDY_PARAMS}
+        inp = draw(fl, 100 + k, truth["vector_white_hor"], f["vector_cov_scale_hor"], f["gps_noise_scale"],
+                   gm_deg=gm_deg, imu={"gyro_white": truth["gyro_white"], "accel_white": truth["accel_white"]},
+                   sun_at=white0)
+        res = tune(inp, base, list(STUDY_PARAMS))
+        for n, e in res.by_name().items():
+            err = math.log(e.value / truth[n])
+            cases[e.status].append((k, n, abs(e.value / truth[n] - 1), abs(err) / e.se_log, e.se_log))
+        print(k, {n: f"x{f[n]:.2f} {e.status} {100 * (e.value / truth[n] - 1):+.1f} % (SE {100 * e.se_log:.1f} %)"
+                  for n, e in res.by_name().items()}, f"{res.evaluations} runs {res.seconds:.0f} s", flush=True)
+    return cases
+
+
+def summarise(cases: dict) -> tuple[float, float]:
+    """Prints the study's table; returns (max relative error, 3-sigma coverage) of the identified."""
+    ident = cases["identified"]
+    for st, cs in cases.items():
+        by = {}
+        for _k, n, rel, z, se in cs:
+            by.setdefault(n, []).append((rel, z, se))
+        for n, v in by.items():
+            rel, z, se = np.array(v).T
+            print(f"{st:12s} {n:22s} {len(v):2d} cases, max rel err {100 * rel.max():6.1f} %, covered at 3 SE "
+                  f"{np.mean(z < 3):.2f}, SE {100 * se.min():.1f}..{100 * se.max():.1f} %")
+    rel = max(c[2] for c in ident)
+    cover = float(np.mean([c[3] < 3 for c in ident]))
+    print(f"identified: {len(ident)} cases, max relative error {100 * rel:.1f} %, covered at 3 SE {cover:.2f}")
+    return rel, cover
+
+
 @pytest.mark.slow
-def test_tune_coverage_20_draws(coast):
-    """20 draws whose true vector white noise, Gauss-Markov scale and GPS noise scale are drawn
-    log-uniformly x0.3..x3 away from the prior, on the 140 s coast: the standard error covers
-    the error at 3 sigma in >= 90 % of the (draw, parameter) cases (the issue's acceptance; a
-    correct standard error covers 99.7 %, measured 98 % of 58), and every parameter identified
-    to 10 % (1 sigma) is within 30 % of the truth. The Gauss-Markov scale on this short coast is
-    identified to 10-20 % only, so its error reaches 30-50 % in a few draws (inside 3 sigma)."""
-    rng = np.random.default_rng(2024)
-    rels, covers, tight = [], [], []
-    for k in range(20):
-        f = np.exp(rng.uniform(math.log(0.3), math.log(3.0), 3))
-        truth = {"vector_white_hor": f[0] * PRIOR_WHITE, "vector_cov_scale_hor": f[1], "gps_noise_scale": f[2]}
-        res = tune(draw(coast, 100 + k, truth["vector_white_hor"], f[1], f[2]), base_tuning(), list(truth))
-        rel, cover = check_recovery(res, truth)
-        print(k, {n: f"{100 * v:.1f} % (SE {100 * res.by_name()[n].se_log:.1f} %)" for n, v in rel.items()}, cover)
-        rels += list(rel.values())
-        covers += list(cover.values())
-        tight += [v for n, v in rel.items() if res.by_name()[n].se_log <= 0.1]
-    print(f"max relative error {100 * max(rels):.1f} % (SE <= 10 %: {100 * max(tight):.1f} %), "
-          f"covered {np.mean(covers):.2f} of {len(covers)}")
-    assert np.mean(covers) >= 0.90
-    assert max(tight) < 0.30
+@pytest.mark.parametrize("scenario", ["atek", "narrow", "pinhole-orbit"])
+def test_tune_coverage_20_draws(scenario, coast, narrow_coast):
+    """20 draws whose true vector white noise (horizon), Gauss-Markov vector scale, GPS noise scale
+    and gyro and accelerometer white noise are drawn log-uniformly x0.3..x3 away from the prior,
+    tuned on the 140 s coast of atek (two fisheye cameras, horizon and Sun) and of atek with one
+    narrow pinhole camera (horizon only), and of the pinhole-orbit scenario (one narrow camera on
+    the limb at 500 km, 0.5 Hz, GPS at 1 Hz). The issue's acceptance: every parameter called
+    identified is within 30 % of the truth, and the standard error covers its error at 3 sigma in
+    >= 90 % of the cases. The identification criterion (3 SE <= ln 1.3) makes the first follow
+    from the second for a correct standard error (99.7 % coverage; a case outside 3 SE may still
+    be inside 30 %). Measured: atek 42 identified cases, largest error 13.4 %, coverage 1.00;
+    narrow 38 cases, 14.0 %, 1.00; pinhole-orbit 28 cases, 10.5 %, 1.00."""
+    if scenario == "pinhole-orbit":
+        from scenarios.sim.scenario import LIBRARY_DIR, load_scenario
+        from scenarios.sim.simulate import simulate_flight
+        if not (LIBRARY_DIR / "pinhole-orbit.toml").exists():
+            pytest.skip("the pinhole-orbit scenario is not in this checkout")
+        fl, white0, gm = simulate_flight(load_scenario(scenario), seed=7, duration=200.0), NARROW_WHITE, NARROW_GM_DEG
+    else:
+        fl, white0, gm = (coast, PRIOR_WHITE, VEC_GM_DEG) if scenario == "atek" else (narrow_coast, NARROW_WHITE,
+                                                                                      NARROW_GM_DEG)
+    cases = coverage_study(fl, 20, white0=white0, gm_deg=gm)
+    rel, cover = summarise(cases)
+    assert len(cases["identified"]) >= 20
+    assert cover >= 0.90
+    assert rel < 0.30
 
 
 def test_iterated_vector_update_reaches_the_map_point(coast):
@@ -216,3 +313,122 @@ def test_cli_tune(vlog, tmp_path, capsys):
     se = float(e.split("+-")[1].split("%")[0]) / 100
     assert abs(math.log(t.gps_noise_scale)) < 4 * se
     assert main(["tune", str(vlog), "--params", "nonsense", "-o", str(out), "--quiet"]) == 2
+
+
+# ------------------------------------------------------------------------------------------------
+# Gauss-Markov gyro drift, the executor fan-out, the identifiability Monte Carlo
+# ------------------------------------------------------------------------------------------------
+
+def test_gyro_gm_recovery():
+    """Gyro drift of 30 deg/h, tau 10 s on atek T+60..T+300 (precise vectors: 0.01 deg GM and
+    0.0005 white; GPS thinned to 1 Hz, which in the coast does not see the attitude), tuned from a
+    prior at half the sigma and twice the tau, 3 seeds: both parameters are estimated (not left at
+    the prior) and each estimate is within 3 of its standard errors of the truth (the Gaussian
+    99.7 % bound; measured |error| / SE <= 1.7); the sigma, which 24 correlation times pin to
+    9-11 % (1 SE), is within 30 % of the truth (measured 2-6 %). With the state off both
+    parameters are left out with the reason."""
+    from nav.tuning import StateGroupTuning
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
+    sig, tau = 30.0 * DEG_H, 10.0
+    fl = simulate_flight(load_scenario("atek"), seed=7, duration=300.0)
+    base = base_tuning(NARROW_WHITE)
+    prior = base.with_(gyro_gm=StateGroupTuning("E", 0.5 * sig), gyro_gm_tau_s=2 * tau)
+    for seed in (21, 22, 23):
+        inp = draw(fl, seed, NARROW_WHITE, 1.0, 1.0, gm_deg=0.01,
+                   imu={"gyro_white": base.gyro_white, "accel_white": base.accel_white, "gyro_gm": sig, "gyro_gm_tau": tau})
+        g, s = inp.gps, slice(None, None, 10)
+        inp.gps = GpsData(g.t_ns[s], g.x_e[s], g.P_x[s], g.v_e[s], g.P_v[s])
+        res = tune(inp, prior, ["gyro_gm_sigma", "gyro_gm_tau"])
+        print(res.report())
+        est = res.by_name()
+        for name, true in (("gyro_gm_sigma", sig), ("gyro_gm_tau", tau)):
+            e = est[name]
+            assert e.status in ("identified", "weak"), res.report()
+            assert abs(math.log(e.value / true)) < 3 * e.se_log, (name, res.report())
+        assert abs(est["gyro_gm_sigma"].value / sig - 1) < 0.30
+    _, why = available(["gyro_gm_sigma", "gyro_gm_tau"], base, {"hor", "gps_pos"})
+    assert why == {"gyro_gm_sigma": "the gyro_gm state is off", "gyro_gm_tau": "the gyro_gm state is off"}
+
+
+def test_executor_fanout_equals_serial():
+    """The likelihood's filter replays through the study executors (2 local processes; a Dask
+    client, here in-process with 2 threads) give the serial run's estimates and standard errors
+    bit for bit (every replay is deterministic), the same number of runs, and Dask executes the
+    derivative replays (its task stream records them)."""
+    from dask.distributed import Client, get_task_stream
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
+    from scenarios.study.tune import executor_mapper
+    fl = simulate_flight(load_scenario("atek"), seed=7, duration=100.0)
+    inp = draw(fl, 11, 0.3 * PRIOR_WHITE, 2.5, 2.0)
+    names = ["vector_white_hor", "gps_noise_scale"]
+    ref = tune(inp, base_tuning(), names)
+    with executor_mapper(2) as m:
+        par = tune(inp, base_tuning(), names, mapper=m)
+    with Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as c:
+        with get_task_stream(c) as ts, executor_mapper(client=c) as m:
+            dsk = tune(inp, base_tuning(), names, mapper=m)
+    for other in (par, dsk):
+        assert [(e.value, e.se_log, e.status) for e in other.estimates] == \
+               [(e.value, e.se_log, e.status) for e in ref.estimates]
+        assert other.evaluations == ref.evaluations and other.nll == ref.nll
+    assert len(ts.data) >= 2 * len(names) * 2   # at least two scoring iterations' derivative runs
+
+
+def test_likelihood_ratio_power_on_gaussian_statistic():
+    """ParamPower on a statistic whose distributions are known: Lambda ~ N(0, 1) under theta_lo
+    and N(d, 1) under theta_hi; the 5 % test's power is Phi(d - 1.645) (0.05 at d = 0, 0.64 at
+    d = 2, 0.99 at d = 4). 20000 draws per hypothesis: binomial error < 0.004, and the quantile's
+    own error adds < 0.005."""
+    from scipy.stats import norm
+    from scenarios.study.identifiability import ParamPower, predicted_power
+    rng = np.random.default_rng(5)
+    for d in (0.0, 2.0, 4.0):
+        pp = ParamPower("x", rng.normal(0, 1, 20000), rng.normal(d, 1, 20000), "weak", 1.0, 2.0)
+        assert pp.power == pytest.approx(norm.cdf(d - 1.6448536), abs=0.015), d
+    # the log-estimate's standard error se gives d = 2 ln(factor) / se
+    assert predicted_power(math.log(2.0), 2.0) == pytest.approx(norm.cdf(2.0 - norm.ppf(0.95)), rel=1e-12)
+    assert predicted_power(math.inf, 2.0) == 0.05 and predicted_power(math.log(1.3) / 3, 2.0) > 1 - 1e-9
+
+
+@pytest.mark.slow
+def test_identifiability_monte_carlo():
+    """The issue's check of the unidentified parameters: on atek T+60..T+120 (simulated vectors),
+    tune's verdict on one flight at the prior against the power of the 5 % likelihood-ratio test
+    between x1/2 and x2 of each parameter over 200 flights (40 for an identified one). An
+    unidentified parameter (SE >= ln 2) has a predicted power <= 0.64; its Monte Carlo power must
+    be below 0.64 + 3 binomial errors. An identified one (3 SE <= ln 1.3) has a predicted power of 1;
+    its Monte Carlo power must be >= 0.95. Measured: gyro white noise (SE 1.37) 0.59, accelerometer
+    white noise (SE 24) 0.11, the Gauss-Markov scale (weak, SE 0.59) 0.86, identified ones 1.00."""
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.study.identifiability import identifiability
+    from scenarios.study.tune import executor_mapper
+    with executor_mapper(2) as m:
+        res = identifiability(load_scenario("atek"), base_tuning(), STUDY_PARAMS, runs=200, control_runs=40,
+                              mapper=m)
+    print(res.report())
+    for p in res.params:
+        if p.status == "unidentified":
+            assert p.power < 0.64 + 3 * p.power_se, p.line()
+        if p.status == "identified":
+            assert p.power >= 0.95, p.line()
+    assert any(p.status == "identified" for p in res.params)
+
+
+def test_cli_identify(tmp_path, capsys):
+    """``horizon-nav identify`` on a 10 s atek window, the GPS scale only, 4 flights: tune calls
+    it identified (SE ~2 % from 100 fixes), and the likelihood ratio between x1/2 and x2 separates
+    every flight (their -log L differ by hundreds: power 1); the table and text are written, and
+    a reversed window is a one-line error (exit 2)."""
+    import pandas as pd
+    from scenarios.cli._main import main
+    rc = main(["identify", "atek", "--from", "60", "--to", "70", "--params", "gps_noise_scale", "--runs", "4",
+               "--control-runs", "4", "--quiet", "-o", str(tmp_path)])
+    print(capsys.readouterr().out)
+    assert rc == 0
+    tab = pd.read_csv(tmp_path / "identifiability.csv")
+    assert tab["param"].tolist() == ["gps_noise_scale"] and tab["status"][0] == "identified"
+    assert tab["power"][0] == 1.0 and tab["flights_lo"][0] == 2 and tab["predicted_power"][0] > 0.999
+    assert "likelihood-ratio test" in (tmp_path / "identifiability.txt").read_text()
+    assert main(["identify", "atek", "--from", "70", "--to", "60", "-o", str(tmp_path)]) == 2

@@ -31,6 +31,10 @@ def add_arguments(p) -> None:
                    help="auto: images if the log has them, else its vectors")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--max-iter", type=int, default=20, help="scoring iterations per round (default 20)")
+    p.add_argument("-j", "--jobs", type=int, default=0,
+                   help="local processes for the filter replays of each scoring iteration (default 0: this process)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run the filter replays on this Dask distributed scheduler (as `study --scheduler`)")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write the observability report (CSV, HTML, PNG per state group) into DIR")
     p.add_argument("--report-only", action="store_true",
@@ -55,7 +59,7 @@ def run(args) -> int:
     from scenarios.cli.replay import camera_numbers
     from scenarios.errors import UserError
     from scenarios.replay.steps import _tuning
-    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, tune, tuning_toml
+    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, executor_mapper, tune, tuning_toml
 
     names = DEFAULT_PARAMS if not args.params else tuple(s.strip() for s in args.params.split(",") if s.strip())
     unknown = [n for n in names if n not in PARAMS]
@@ -66,9 +70,15 @@ def run(args) -> int:
         raise UserError("--report-only: needs --report DIR (the folder to write the report into)")
     if not args.output and not args.report_only:
         raise UserError("-o/--output: expected the tuning TOML to write (or --report DIR --report-only)")
+    if args.jobs < 0:
+        raise UserError(f"--jobs {args.jobs}: expected >= 0")
     if not 0.0 <= args.report_low <= args.report_high <= 1.0:
         raise UserError(f"--report-low/--report-high: expected 0 <= low <= high <= 1, got "
                         f"{args.report_low} and {args.report_high}")
+    client = None
+    if args.scheduler:   # an unreachable scheduler is reported before the vision runs
+        from scenarios.study.execute import check_scheduler
+        client = check_scheduler(args.scheduler)
     cams = camera_numbers(args.cameras)
     targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     base = _tuning(args.tuning)
@@ -88,9 +98,10 @@ def run(args) -> int:
         lg.setLevel(logging.INFO)
     if args.report_only:
         return _report(args, inputs, base)
-    with tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
+    with executor_mapper(args.jobs, client=client) as mapper, \
+            tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
         try:
-            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar)
+            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar, mapper=mapper)
         except ValueError as e:
             raise UserError(f"--params: {e}") from None
     print(res.report())

@@ -36,17 +36,25 @@ quasi-Newton method with finite-difference gradients needs several times the run
 
 Identification
 --------------
-A parameter is *identified* when the standard error of its logarithm is below
-:data:`SE_LOG_MAX` (``ln 2``: the flight pins it to better than a factor 2 at 1 sigma). The
-unidentified ones are found one at a time, the largest standard error first, the others' errors
-then taken with it fixed (of two parameters the flight constrains only together, one is fixed
-and the other estimated); they keep their prior and the identified ones are re-estimated with
-them fixed, except those whose prior the flight rejects (-log L higher by more than
-:data:`LR_GAP` with that parameter alone at its prior: one-sided information, such as a white
-noise below what the other errors let the flight see), which keep their estimate without a
-standard error. A parameter
-none of whose measurements are in the flight (e.g. the Sun's white noise without a Sun vector,
-the GPS scale without GPS) is left out before the optimisation, with the reason.
+Three classes, from the standard error ``se`` of a parameter's logarithm (the Fisher information
+at the estimate):
+
+* *identified*: ``3 se <= ln 1.3`` (:data:`SE_LOG_IDENTIFIED`, 0.087): the 3-sigma interval of the
+  estimate, ``exp(+-3 se)``, lies within 30 % of it, so the truth is within 30 % of the estimate
+  whenever it is inside that interval (99.7 % for a correct standard error);
+* *weakly identified*: ``se`` between that and ``ln 2``: the flight tells the parameter to better
+  than a factor 2 but not to 30 %; the estimate is kept (it belongs to the joint maximum with the
+  identified ones, and the data reject the prior more often than not) and reported as weak;
+* *unidentified* (flat likelihood): ``se >= ln 2`` (:data:`SE_LOG_FLAT`). These are found one at
+  a time, the largest standard error first, the others' errors then taken with it fixed (of two
+  parameters the flight constrains only together, one is fixed and the other estimated); they keep
+  their prior and the others are re-estimated with them fixed, except those whose prior the flight
+  rejects (-log L higher by more than :data:`LR_GAP` with that parameter alone at its prior:
+  one-sided information, such as a white noise below what the other errors let the flight see),
+  which keep their estimate without a standard error.
+
+A parameter none of whose measurements are in the flight (e.g. the Sun's white noise without a Sun
+vector, the GPS scale without GPS) is left out before the optimisation, with the reason.
 
 Adding a parameter is one :class:`Param` in :data:`PARAMS`: how to read it from and set it in a
 :class:`nav.tuning.Tuning`, the measurement kinds it needs and its key in the tuning TOML (an
@@ -59,12 +67,13 @@ import logging
 import math
 import time
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
-from nav.error_state import IMU_GROUPS
+from nav.error_state import TRANSITION_GROUPS
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
 from nav.navigator import GpsData, VectorData, run
 from nav.tuning import G0, Tuning
@@ -72,7 +81,16 @@ from nav.tuning import G0, Tuning
 log = logging.getLogger(__name__)
 
 STEP = 0.05            #: central-difference step in log-parameters
-SE_LOG_MAX = math.log(2.0)   #: largest standard error of a log-parameter called identified
+#: relative accuracy an *identified* parameter is promised to (within 30 % of the truth) ...
+REL_ACCURACY = 0.30
+#: ... at this many standard errors (3: 99.7 % for a correct standard error)
+Z_IDENTIFIED = 3.0
+#: largest standard error of a log-parameter called identified: Z * SE <= ln(1 + 0.30), so the
+#: Z-sigma interval exp(+-Z SE) lies inside [1/1.3, 1.3], within [0.7, 1.3] of the truth
+SE_LOG_IDENTIFIED = math.log(1.0 + REL_ACCURACY) / Z_IDENTIFIED
+#: standard error of a log-parameter from which the likelihood is called flat (unidentified, the
+#: parameter kept at its prior): the flight does not pin it to a factor 2 at 1 sigma
+SE_LOG_FLAT = math.log(2.0)
 BOUND_FACTOR = 30.0    #: the estimate stays within this factor of the prior
 MAX_STEP_LOG = math.log(4.0)   #: largest change of a log-parameter in one iteration
 RIDGE = 1.0            #: added to the information in the step (not in the standard errors)
@@ -118,10 +136,12 @@ def _group_used(name: str):
     return lambda t: f"the {name} state is off" if not getattr(t, name).on else None
 
 
-def _group_param(name: str, unit: str, key: str, factor: float) -> Param:
-    return Param(name, unit, lambda t: getattr(t, name).sigma,
-                 lambda t, v: replace(t, **{name: replace(getattr(t, name), sigma=v)}), frozenset(AIDING),
-                 (("states." + name, key, 1.0 / factor),), _group_used(name), 1.0 / factor)
+def _group_param(name: str, unit: str, key: str, factor: float, group: str | None = None) -> Param:
+    """The 1-sigma of state group ``group`` (default ``name``) as parameter ``name``."""
+    g = group or name
+    return Param(name, unit, lambda t: getattr(t, g).sigma,
+                 lambda t, v: replace(t, **{g: replace(getattr(t, g), sigma=v)}), frozenset(AIDING),
+                 (("states." + g, key, 1.0 / factor),), _group_used(g), 1.0 / factor)
 
 
 def _params() -> dict:
@@ -146,6 +166,10 @@ def _params() -> dict:
                               ("imu", "accel_white_noise_extra_mg_rthz", None)), to_unit=1.0 / (1e-3 * G0))
     p["gyro_bias"] = _group_param("gyro_bias", "deg/h", "sigma_deg_h", math.radians(1.0) / 3600.0)
     p["accel_bias"] = _group_param("accel_bias", "mg", "sigma_mg", 1e-3 * G0)
+    p["gyro_gm_sigma"] = _group_param("gyro_gm_sigma", "deg/h", "sigma_deg_h", math.radians(1.0) / 3600.0, "gyro_gm")
+    p["gyro_gm_tau"] = Param("gyro_gm_tau", "s", lambda t: t.gyro_gm_tau_s, lambda t, v: replace(t, gyro_gm_tau_s=v),
+                             frozenset(AIDING), (("states.gyro_gm", "correlation_time_s", 1.0),),
+                             _group_used("gyro_gm"))
     p["gps_noise_scale"] = Param("gps_noise_scale", "x", lambda t: t.gps_noise_scale,
                                  lambda t, v: replace(t, gps_noise_scale=v), frozenset({"gps_pos", "gps_vel"}),
                                  (("gps", "noise_scale", 1.0),))
@@ -158,7 +182,7 @@ PARAMS = _params()
 #: without measurements are dropped with the reason)
 DEFAULT_PARAMS = ("vector_white_hor", "vector_white_sun", "vector_white_moon", "vector_cov_scale_hor",
                   "vector_cov_scale_sun", "vector_cov_scale_moon", "correlation_time", "gyro_white", "accel_white",
-                  "gyro_bias", "accel_bias", "gps_noise_scale")
+                  "gyro_bias", "accel_bias", "gyro_gm_sigma", "gyro_gm_tau", "gps_noise_scale")
 
 
 @dataclass
@@ -178,19 +202,36 @@ class Estimate:
     prior: float          #: SI
     value: float          #: SI (the prior when unidentified)
     se_log: float         #: standard error of the log-parameter (inf: not identified at all)
-    identified: bool
+    identified: bool      #: 3 se_log <= ln 1.3: within 30 % at 3 sigma (module docstring)
     reason: str | None = None   #: why it is not identified
     unit: str = ""
     to_unit: float = 1.0
     #: the estimate is written without a standard error: at the search bound, or one-sided
     #: (the likelihood flat on one side, the prior rejected)
     at_bound: bool = False
+    #: weakly identified: estimated (se_log < ln 2) but not to 30 % at 3 sigma
+    weak: bool = False
+
+    @property
+    def status(self) -> str:
+        """``identified``, ``weak``, ``one-sided`` (or at the search bound) or ``unidentified``."""
+        if self.identified:
+            return "identified"
+        if self.weak:
+            return "weak"
+        return "one-sided" if self.at_bound else "unidentified"
+
+    @property
+    def estimated(self) -> bool:
+        """The value is the flight's estimate (written to the tuning), not the prior."""
+        return self.identified or self.weak or self.at_bound
 
     def line(self) -> str:
         v, p = self.value * self.to_unit, self.prior * self.to_unit
-        if self.identified:
+        if self.identified or self.weak:
+            tag = "" if self.identified else f" weakly identified: {self.reason}"
             return (f"{self.name:24s} {v:11.4g} {self.unit:12s} +- {100 * self.se_log:5.1f} % "
-                    f"(prior {p:.4g}, x{self.value / self.prior:.3g})")
+                    f"(prior {p:.4g}, x{self.value / self.prior:.3g}){tag}")
         if self.at_bound:
             return f"{self.name:24s} {v:11.4g} {self.unit:12s} {self.reason} (prior {p:.4g})"
         return f"{self.name:24s} {p:11.4g} {self.unit:12s} not identified: {self.reason}"
@@ -238,6 +279,7 @@ class Objective:
         self.gps, self.vectors = inputs.gps, inputs.vectors
         self.keys = None
         self.one_sided = {}
+        self.flat_se = {}   #: name -> standard error when the parameter was found flat and fixed
 
     def tuning(self, theta, *, gate: bool = False) -> Tuning:
         t = self.base
@@ -275,14 +317,64 @@ class Objective:
         iset = innovation_set(self.run(self.tuning(theta)).innovations)
         return negative_log_likelihood(iset)[0], iset
 
+    def many(self, pts, mapper=map) -> list:
+        """``[self(theta) for theta in pts]``, the runs through ``mapper`` (a ``map``-like callable,
+        e.g. :func:`executor_mapper`'s, which runs them in other processes or on a Dask cluster);
+        the runs and their time are counted here either way."""
+        if mapper is map:
+            return [self(th) for th in pts]
+        out = list(mapper(_remote_call, [self] * len(pts), [np.asarray(th, float) for th in pts]))
+        for _f, _iset, sec in out:
+            self.evaluations += 1
+            self.seconds += sec
+            if self.progress is not None:
+                self.progress.update(1)
+        return [(f, iset) for f, iset, _sec in out]
+
+    def __getstate__(self):
+        # the parameters travel by name (their accessors are closures) and the progress bar stays
+        st = dict(self.__dict__, progress=None, params=[p.name for p in self.params])
+        return st
+
+    def __setstate__(self, st):
+        self.__dict__.update(st, params=[PARAMS[n] for n in st["params"]])
+
+
+def _remote_call(obj: Objective, theta) -> tuple:
+    """One likelihood evaluation in a worker: ``(-log L, InnovationSet, seconds)``."""
+    logging.getLogger("nav.navigator").setLevel(logging.ERROR)
+    t0 = time.perf_counter()
+    f, iset = obj(theta)
+    return f, iset, time.perf_counter() - t0
+
+
+@contextmanager
+def executor_mapper(jobs: int = 0, scheduler: str | None = None, client=None):
+    """A ``map``-like callable for :func:`tune` (``mapper=``) that runs the filter replays of the
+    likelihood's derivatives (2p per scoring iteration) in parallel: on a Dask cluster
+    (``scheduler`` address or ``client``, as ``horizon-nav study --scheduler``), on ``jobs`` local
+    processes (``jobs`` > 1), or the built-in ``map`` in this process. The results, and so the
+    estimate, are those of the serial run: every replay is deterministic."""
+    if scheduler and client is None:
+        from scenarios.study.execute import check_scheduler
+        client = check_scheduler(scheduler)
+    if client is not None:
+        yield lambda fn, *its: client.gather(client.map(fn, *its, pure=False))
+    elif jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            yield lambda fn, *its: list(pool.map(fn, *its))
+    else:
+        yield map
+
 
 def estimated_everywhere(t: Tuning) -> Tuning:
     """``t`` with every considered ("C") error group estimated ("E"). The prediction-error
     decomposition is the likelihood only for the optimal filter: a Schmidt filter's innovations
     have the right covariance but are correlated in time (the considered errors are not
     corrected), so their product of marginals is not the likelihood of the measurements."""
-    kw = {nm: replace(getattr(t, nm), mode="E") for nm in IMU_GROUPS + ("camera_misalignment", "camera_clock_offset")
-          if getattr(t, nm).mode == "C"}
+    groups = TRANSITION_GROUPS + ("camera_misalignment", "camera_clock_offset", "edge_height")
+    kw = {nm: replace(getattr(t, nm), mode="E") for nm in groups if getattr(t, nm).mode == "C"}
     if t.vector_gm_mode == "C":
         kw["vector_gm_mode"] = "E"
     return replace(t, **kw)
@@ -317,7 +409,7 @@ def _derivatives(obj: Objective, theta, f0: float, iset0, mapper=map):
     ``theta`` from the 2p runs at theta +- STEP e_i (central differences)."""
     p = theta.size
     pts = [theta + s * STEP * np.eye(p)[i] for i in range(p) for s in (1.0, -1.0)]
-    out = list(mapper(obj, pts))
+    out = obj.many(pts, mapper)
     fp, fm = np.array([o[0] for o in out[0::2]]), np.array([o[0] for o in out[1::2]])
     grad = (fp - fm) / (2 * STEP)
     hdiag = (fp - 2 * f0 + fm) / STEP ** 2
@@ -464,8 +556,9 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     while params and rounds < max_rounds:
         rounds += 1
         theta, f, iset, info, _, converged = optimise(obj, theta, max_iter=max_iter, mapper=mapper)
-        weak = _weak(info, _at_bound(obj, theta))
-        weak &= ~_one_sided(obj, theta, f, weak)
+        obj.flat_se = {}
+        weak = _weak(info, _at_bound(obj, theta), obj.flat_se, [p.name for p in params])
+        weak &= ~_one_sided(obj, theta, f, weak, mapper)
         if weak.any() and not weak.all():
             theta, f, iset, info, se, converged = _refit(obj, theta, weak, max_iter, mapper)
         changed = obj.fix_set(theta)
@@ -479,7 +572,7 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     ests = _estimates(obj, params, theta, info, why, base)
     tuned = base
     for e in ests:
-        tuned = PARAMS[e.name].set(tuned, e.value) if (e.identified or e.at_bound) else tuned
+        tuned = PARAMS[e.name].set(tuned, e.value) if e.estimated else tuned
     warn += [f"{e.name} = {e.value * e.to_unit:.4g} {e.unit} has no standard error: {e.reason}"
              for e in ests if e.at_bound]
     n_meas = len(obj.keys) if obj.keys is not None else 0
@@ -489,35 +582,42 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
                       time.perf_counter() - t_start, converged, n_meas, rounds, warn)
 
 
-def _one_sided(obj: Objective, theta, f: float, weak) -> np.ndarray:
+def _one_sided(obj: Objective, theta, f: float, weak, mapper=map) -> np.ndarray:
     """Of the weak parameters, those whose prior the flight rejects: -log L rises by more than
     :data:`LR_GAP` when the parameter alone goes back to its prior (the likelihood is flat on one
     side of the estimate only, e.g. a white noise below what the other errors let the flight
     see). They keep their estimate, without a standard error (``obj.one_sided``: name -> rise)."""
     out = np.zeros(theta.size, bool)
-    for i in np.flatnonzero(weak):
+    idx = np.flatnonzero(weak)
+    pts = []
+    for i in idx:
         th = theta.copy()
         th[i] = obj.theta0[i]
-        rise = obj(th)[0] - f
+        pts.append(th)
+    for i, (fi, _iset) in zip(idx, obj.many(pts, mapper)):
+        rise = fi - f
         if rise > LR_GAP:
             out[i] = True
             obj.one_sided[obj.params[i].name] = rise
     return out
 
 
-def _weak(info: np.ndarray, at_bound: np.ndarray) -> np.ndarray:
+def _weak(info: np.ndarray, at_bound: np.ndarray, flat_se: dict | None = None, names=()) -> np.ndarray:
     """The parameters the flight does not identify: repeatedly the one with the largest standard
-    error above :data:`SE_LOG_MAX` (the others' errors taken with it fixed), so that of two
-    parameters the flight only constrains together, one is fixed and the other estimated."""
+    error above :data:`SE_LOG_FLAT` (the others' errors taken with it fixed), so that of two
+    parameters the flight only constrains together, one is fixed and the other estimated.
+    ``flat_se`` (name -> se) receives the standard error each had when it was fixed."""
     keep = ~at_bound
     weak = np.zeros(at_bound.size, bool)
     while keep.any():
         idx = np.flatnonzero(keep)
         se = np.sqrt(_variances(info[np.ix_(idx, idx)]))
-        if se.max() < SE_LOG_MAX:
+        if se.max() < SE_LOG_FLAT:
             break
         worst = idx[int(np.argmax(se))]
         weak[worst], keep[worst] = True, False
+        if flat_se is not None:
+            flat_se[names[worst]] = float(se.max())
     return weak
 
 
@@ -553,18 +653,25 @@ def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> 
         se = np.full(len(params), np.inf)
         if keep.any():
             se[keep] = np.sqrt(_variances(info[np.ix_(keep, keep)]))
+        # a parameter fixed as flat reports the standard error that made it flat (finite when the
+        # flight carries some information: a factor-2 change is then seen in some flights)
+        se = np.array([obj.flat_se.get(p.name, x) if not k else x for p, x, k in zip(params, se, keep)])
         for p, th, s, b in zip(params, theta, se, atb):
-            ident = bool(s < SE_LOG_MAX) and not b
-            reason = None if ident else (f"flat likelihood: standard error of log {p.name} {s:.2f} "
-                                         f"(> ln 2, a factor-2 1-sigma)")
+            ident, weak = bool(s <= SE_LOG_IDENTIFIED) and not b, bool(SE_LOG_IDENTIFIED < s < SE_LOG_FLAT) and not b
+            reason = None
+            if weak:
+                reason = (f"3 standard errors ({300 * s:.0f} % in log) exceed ln 1.3 (a 30 % bound); "
+                          f"the estimate is kept")
+            elif not ident:
+                reason = f"flat likelihood: standard error of log {p.name} {s:.2f} (>= ln 2, a factor-2 1-sigma)"
             if b:
                 reason = f"at the bound of the search (x{math.exp(th - math.log(p.get(base))):.3g} of the prior)"
-            elif not ident and p.name in obj.one_sided:
+            elif not (ident or weak) and p.name in obj.one_sided:
                 b = True
                 reason = (f"one-sided: no standard error, but -log L is {obj.one_sided[p.name]:.1f} higher at the "
                           f"prior (x{math.exp(th - math.log(p.get(base))):.3g} of the prior kept)")
-            out.append(Estimate(p.name, p.get(base), math.exp(th) if (ident or b) else p.get(base), float(s), ident,
-                                reason, p.unit, p.to_unit, bool(b)))
+            out.append(Estimate(p.name, p.get(base), math.exp(th) if (ident or weak or b) else p.get(base), float(s),
+                                ident, reason, p.unit, p.to_unit, bool(b), weak))
     for n, r in why.items():
         p = PARAMS[n]
         out.append(Estimate(n, p.get(base), p.get(base), math.inf, False, r, p.unit, p.to_unit))
@@ -605,12 +712,13 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
                 tables.setdefault(tb, {})[key] = val
                 comments[(tb, key)] = f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}"
             continue
-        if not e.identified:
+        if not e.estimated:
             lines.append(f"# {e.name}: not identified ({e.reason}); kept at {e.prior * e.to_unit:.4g} {e.unit}")
             continue
+        what = "ML estimate" if e.identified else "ML estimate, WEAKLY identified (3 SE > 30 %)"
         for tb, key, val in PARAMS[e.name].entries(e.value):
             tables.setdefault(tb, {})[key] = val
-            comments[(tb, key)] = (f"ML estimate, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
+            comments[(tb, key)] = (f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
                                    f"prior {e.prior * e.to_unit:.4g} {e.unit}")
     for tb in sorted(tables):
         lines += ["", f"[{tb}]"]
