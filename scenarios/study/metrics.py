@@ -65,7 +65,7 @@ def bin_means(t_s: np.ndarray, v: np.ndarray, width: float = 1.0):
 
 
 def run_metrics(res, truth, truth_idx, liftoff_ns: int, window: tuple, psi_c_true, which=("nees", "nis", "rms", "misalignment"),
-                smooth=None):
+                smooth=None, edge_truth_m: float = float("nan")):
     """Scalar metrics and time series of one run.
 
     Parameters
@@ -75,6 +75,8 @@ def run_metrics(res, truth, truth_idx, liftoff_ns: int, window: tuple, psi_c_tru
     window : (t0, t1) mission time [s] the metrics average over.
     psi_c_true : (n_cam, 3) true camera misalignments [rad] (003 eq. (50)).
     smooth : nav.smoother.SmoothResult or None.
+    edge_truth_m : true Earth edge height [m] of every camera, for the smoothed edge-height states
+        (:func:`edge_metrics`).
 
     Returns
     -------
@@ -176,4 +178,23 @@ def run_metrics(res, truth, truth_idx, liftoff_ns: int, window: tuple, psi_c_tru
         out["rms_pos_smoothed_m"] = float(np.sqrt(np.mean(np.sum(ep ** 2, 1))))
         out["sigma_pos_smoothed_m"] = float(np.sqrt(np.mean(np.sum(sp ** 2, 1))))
         out["inside3_att_smoothed"] = float(np.mean(np.abs(ea) < 3 * sa))
+        out.update(edge_metrics(smooth, lay, m, edge_truth_m))
     return out, series
+
+
+def edge_metrics(smooth, lay, m: np.ndarray, edge_truth_m: float) -> dict:
+    """Smoothed edge height of each camera's ``h_e_c`` state against the true edge height over the
+    epochs ``m``: worst and RMS error [km], the final value and its 1-sigma [km]; empty without
+    the states or their estimates."""
+    names = [g.name for g in lay.groups if g.name.startswith("h_e_")]
+    if not names or smooth.estimates is None or not np.isfinite(edge_truth_m):
+        return {}
+    out = {}
+    for name in names:
+        c, i = name[len("h_e_"):], lay[name].start
+        err = (smooth.estimates[m, i] - edge_truth_m) / 1e3
+        out[f"edge_err_max_km_c{c}"] = float(np.max(np.abs(err)))
+        out[f"edge_err_rms_km_c{c}"] = float(np.sqrt(np.mean(err ** 2)))
+        out[f"edge_final_km_c{c}"] = float(smooth.estimates[m, i][-1] / 1e3)
+        out[f"edge_sigma_final_km_c{c}"] = float(np.sqrt(smooth.P[m, i][-1]) / 1e3)
+    return out

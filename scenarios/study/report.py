@@ -64,6 +64,24 @@ def mc_series(ser: pd.DataFrame, variant: int, quantity: str) -> pd.DataFrame:
     return out.reset_index(drop=True)
 
 
+def band_fraction(ser: pd.DataFrame, variant: int, quantity: str = "nees_att", windows=()) -> dict:
+    """Where the MC mean of ``quantity`` lies against its 95 % band (:func:`mc_series`, the band of
+    an N-run mean of chi2(3) values, ``chi2(3N)/N``), over all its 1-s epochs and per window.
+
+    Returns ``{"all": row, (t0, t1): row, ...}``, each row a dict with ``inside``, ``above``
+    (optimistic: the filter's covariance too small) and ``below`` (pessimistic) as fractions of
+    the epochs, ``mean`` the time average of the MC mean NEES, and ``epochs``."""
+    m = mc_series(ser, variant, quantity)
+    out = {}
+    for key in ["all", *windows]:
+        w = m if key == "all" else m[(m.t_s >= key[0]) & (m.t_s < key[1])]
+        n = max(len(w), 1)
+        out[key] = {"inside": float(((w["mean"] >= w.lo) & (w["mean"] <= w.hi)).sum() / n),
+                    "above": float((w["mean"] > w.hi).sum() / n), "below": float((w["mean"] < w.lo).sum() / n),
+                    "mean": float(w["mean"].mean()) if len(w) else float("nan"), "epochs": int(len(w))}
+    return out
+
+
 def verdicts(ser: pd.DataFrame, variants) -> dict:
     """variant -> {"consistent": bool, "groups": {g: (time-avg NEES, lo, hi, status)}, "text": str}."""
     out = {}

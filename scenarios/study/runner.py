@@ -184,7 +184,8 @@ def exact_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS, wh
     (``e_true + s (e_meas - e_true)``, renormalised) and ``report_scale`` the reported P."""
     from scenarios.sim.truth_vectors import flight_truth_vectors
     fl = S.FlightData(sc, seed, rc.t_end_s, truth, None, None, None, cams)
-    tv = flight_truth_vectors(fl, seed, targets=tuple({"hor": "earth", "sun": "sun"}[t] for t in targets if t in TARGETS),
+    edge = {} if rc.edge_ref_m < 0 else {"edge_ref_m": rc.edge_ref_m}
+    tv = flight_truth_vectors(fl, seed, **edge, targets=tuple({"hor": "earth", "sun": "sun"}[t] for t in targets if t in TARGETS),
                               sun_bloom=rc.sun_bloom, gm_fraction=rc.gm_fraction, T_c=rc.correlation_time_s,
                               min_pixels=rc.min_pixels)
     vd = tv.vector_data([c.k for c in cams])
@@ -194,7 +195,8 @@ def exact_vectors(sc, truth, cams, seed: int, rc: RunConfig, targets=TARGETS, wh
     e = e_true + rc.error_scale * (vd.e_c[m] - e_true)
     e /= np.linalg.norm(e, axis=1, keepdims=True)
     e = _add_white(e, white, S.rng_for(seed, WHITE_STREAM))
-    return VectorData(vd.t_ns[m], vd.camera[m], vd.target[m], e, rc.report_scale ** 2 * vd.P_c[m])
+    return VectorData(vd.t_ns[m], vd.camera[m], vd.target[m], e, rc.report_scale ** 2 * vd.P_c[m],
+                      None if vd.dedge_c is None else vd.dedge_c[m], None if vd.edge_ref_m is None else vd.edge_ref_m[m])
 
 
 def run_one(cfg: dict, spec: RunSpec, metrics=("nees", "nis", "rms", "misalignment", "smoother")) -> RunOutput:
@@ -246,6 +248,6 @@ def run_one(cfg: dict, spec: RunSpec, metrics=("nees", "nis", "rms", "misalignme
     sm = rts_smooth(res) if want_smooth else None
     res.store = None
     out, series = run_metrics(res, tr, truth_idx[start:], tr.liftoff_ns, (rc.window_start_s, rc.t_end_s), psi_c,
-                              metrics, sm)
+                              metrics, sm, edge_truth_m=sc.simulation.horizon_atmosphere_m)
     out["n_vectors"] = float(0 if vectors is None else len(vectors.t_ns))
     return RunOutput(spec, out, series, time.perf_counter() - t_wall)

@@ -107,6 +107,12 @@ class RunConfig:
         Shortest visible limb arc [px] that yields a vector (:func:`vision.error_model.predict_vision`).
     smoother : bool
         Also run the RTS smoother (:func:`nav.smoother.rts_smooth`) and report its errors.
+    edge_ref_m : float
+        Edge height [m] the Earth vectors are fitted at (``vector_model = "exact"`` only): the
+        vectors carry the error of a fit at this height instead of the scenario's true
+        ``simulation.horizon_atmosphere_m``, and its sensitivity for the filter's edge-height
+        state (:mod:`scenarios.sim.truth_vectors`); negative (the default): fitted at the truth,
+        no edge fields.
     """
     t_start_s: float = 60.0
     t_end_s: float = 430.0
@@ -125,6 +131,7 @@ class RunConfig:
     sun_bloom: float = 2.0
     min_pixels: int = 30
     smoother: bool = True
+    edge_ref_m: float = -1.0
 
     def check(self, where: str) -> None:
         if not self.t_end_s > self.t_start_s >= 0:
@@ -134,6 +141,8 @@ class RunConfig:
             raise UserError(f"{where}: run.vectors = {self.vectors!r}: expected 'truth' or 'none'")
         if self.vector_model not in ("cached", "exact"):
             raise UserError(f"{where}: run.vector_model = {self.vector_model!r}: expected 'cached' or 'exact'")
+        if self.edge_ref_m >= 0 and self.vector_model != "exact":
+            raise UserError(f"{where}: run.edge_ref_m = {self.edge_ref_m}: needs run.vector_model = 'exact'")
         if self.init not in ("perturbed", "truth"):
             raise UserError(f"{where}: run.init = {self.init!r}: expected 'perturbed' or 'truth'")
         if not 0.0 <= self.gm_fraction <= 1.0:
