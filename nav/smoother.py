@@ -128,84 +128,109 @@ def _chol_solve(U, B):
 
 
 @nb.njit(cache=True, nogil=True, fastmath={"contract"})
-def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Pn, Ps, k_start):
-    """Backward RTS pass of :func:`rts_smooth` (module docstring) from epoch ``k_start`` down to 0.
+def _cross_estimated(Ak, dk, Pk, e, Ct):
+    """``Ct = (Phi P_post)[e, e]``: the covariance of the estimated states at k+1 with those at k,
+    Phi's rows 0..8 dense (``Ak``), the others diagonal (``dk``); every state's column of P_post
+    enters the navigation rows (the considered states drive the estimated ones)."""
+    ne = e.size
+    for a in range(ne):
+        r = e[a]
+        for b in range(ne):
+            Ct[a, b] = 0.0
+        if r < 9:
+            for q in range(ne):
+                c = Ak[r, e[q]]
+                if c != 0.0:
+                    for b in range(ne):
+                        Ct[a, b] += c * Pk[e[q], e[b]]
+        else:
+            c = dk[r]
+            for b in range(ne):
+                Ct[a, b] = c * Pk[r, e[b]]
+
+
+@nb.njit(cache=True, nogil=True, fastmath={"contract"})
+def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
+    """Backward RTS pass of :func:`rts_smooth` over the estimated states ``e`` (module docstring)
+    from epoch ``k_start`` down to 0.
 
     Parameters
     ----------
     P_prior : (K, n, n); post : (K,) row of ``P_full`` with the posterior (-1: the prior);
     A, dphi : (K, 9, n), (K, n) transition from k-1 to k; dxs : (K, n) fed-back corrections;
-    est : (n,) bool; d : (K, n) smoothed errors (row ``k_start + 1`` given, rows below written);
-    Pd : (K, n) smoothed variances (written); Pn : (K, 9, 9) smoothed navigation block (written);
-    Ps : (n, n) smoothed covariance at ``k_start + 1``, updated in place.
+    e : (ne,) indices of the estimated states (0..8 first); d : (K, n) smoothed errors (row
+    ``k_start + 1`` given, rows below written); Pd : (K, n) smoothed variances (written; the
+    considered states keep the forward ones); Pn : (K, 9, 9) smoothed navigation block (written);
+    Ps : (ne, ne) smoothed covariance of the estimated states at ``k_start + 1``, updated in place.
 
     Returns
     -------
     int
-        -1 when done, or the epoch k where ``P_{k+1}-`` is not positive definite (nothing written
-        for it): the caller solves that epoch by least squares and continues from k - 1.
+        -1 when done, or the epoch k where ``P_{k+1}-[e, e]`` is not positive definite (nothing
+        written for it): the caller solves that epoch by least squares and continues from k - 1.
     """
-    n = P_prior.shape[1]
-    L = np.empty((n, n))
-    Ct = np.empty((n, n))
-    Dl = np.empty((n, n))
-    X = np.empty((n, n))
-    w = np.empty(n)
+    n, ne = P_prior.shape[1], e.size
+    L = np.empty((ne, ne))
+    Ct = np.empty((ne, ne))
+    Pp = np.empty((ne, ne))
+    Dl = np.empty((ne, ne))
+    X = np.empty((ne, ne))
+    w = np.empty(ne)
     for k in range(k_start, -1, -1):
         j = post[k]
-        Pp = P_prior[k + 1]
         Pk = P_full[j] if j >= 0 else P_prior[k]
-        Ak = A[k + 1]
-        dk = dphi[k + 1]
-        # Ct = Phi P_post: rows 0..8 A P_post, the others d_i P_post[i]
-        for a in range(9):
-            for b in range(n):
-                Ct[a, b] = 0.0
-            for p in range(n):
-                c = Ak[a, p]
-                if c != 0.0:
-                    for b in range(n):
-                        Ct[a, b] += c * Pk[p, b]
-        for a in range(9, n):
-            c = dk[a]
-            for b in range(n):
-                Ct[a, b] = c * Pk[a, b]
-        # C^T = Pp^-1 Phi P_post (Pp symmetric)
+        for a in range(ne):
+            for b in range(ne):
+                Pp[a, b] = P_prior[k + 1, e[a], e[b]]
+        _cross_estimated(A[k + 1], dphi[k + 1], Pk, e, Ct)
+        # C^T = Pp^-1 (Phi P_post)[e, e] (Pp symmetric)
         if not _cholesky_upper(Pp, L):
             return k
         _chol_solve(L, Ct)
-        # d_k = C (d_{k+1} + delta_{k+1}), considered components held at zero
-        for a in range(n):
-            w[a] = d[k + 1, a] + dxs[k + 1, a]
+        # d_k = C (d_{k+1} + delta_{k+1}) on the estimated states; the considered ones stay zero
+        for a in range(ne):
+            w[a] = d[k + 1, e[a]] + dxs[k + 1, e[a]]
         for a in range(n):
             d[k, a] = 0.0
-        for p in range(n):
+        for p in range(ne):
             c = w[p]
             if c != 0.0:
-                for a in range(n):
-                    d[k, a] += Ct[p, a] * c
-        for a in range(n):
-            if not est[a]:
-                d[k, a] = 0.0
-        # Ps = P_post + C (Ps_next - Pp) C^T
-        for a in range(n):
-            for b in range(n):
+                for a in range(ne):
+                    d[k, e[a]] += Ct[p, a] * c
+        # Ps = P_post + C (Ps_next - Pp) C^T, numpy's left-to-right order of C @ D @ C.T
+        for a in range(ne):
+            for b in range(ne):
                 Dl[a, b] = Ps[a, b] - Pp[a, b]
-        # C (Ps_next - Pp) C^T = (Ct^T Dl) Ct, numpy's left-to-right order of C @ D @ C.T (two
-        # 45 x 45 BLAS products: single-threaded at this size), then P_post is added
         np.dot(Ct.T, Dl, X)
         np.dot(X, Ct, Dl)
-        for a in range(n):
-            for b in range(n):
-                Ps[a, b] = Pk[a, b] + Dl[a, b]
-        for a in range(n):
-            for b in range(a + 1, n):
+        for a in range(ne):
+            for b in range(ne):
+                Ps[a, b] = Pk[e[a], e[b]] + Dl[a, b]
+        for a in range(ne):
+            for b in range(a + 1, ne):
                 v = 0.5 * (Ps[a, b] + Ps[b, a])
                 Ps[a, b] = v
                 Ps[b, a] = v
-            Pd[k, a] = Ps[a, a]
+        for a in range(n):
+            Pd[k, a] = Pk[a, a]
+        for a in range(ne):
+            Pd[k, e[a]] = Ps[a, a]
         Pn[k] = Ps[:9, :9]
     return -1
+
+
+def _lstsq_epoch(st, e, post_k, d, Ps, k):
+    """Epoch k of the backward pass by least squares (``P_{k+1}-[e, e]`` not positive definite):
+    writes ``d[k]`` and returns the smoothed covariance of the estimated states."""
+    Pe = post_k[np.ix_(e, e)]
+    cross = Pe * st.d[k + 1][e][:, None]
+    cross[:9] = st.A[k + 1][:, e] @ Pe
+    Pp = st.P_prior[k + 1][np.ix_(e, e)]
+    C = np.linalg.lstsq(Pp, cross, rcond=None)[0].T
+    d[k] = 0.0
+    d[k, e] = C @ (d[k + 1, e] + st.dx[k + 1, e])
+    Ps = post_k[np.ix_(e, e)] + C @ (Ps - Pp) @ C.T
+    return np.ascontiguousarray(0.5 * (Ps + Ps.T))
 
 
 def rts_smooth(res: NavResult) -> SmoothResult:
@@ -215,7 +240,9 @@ def rts_smooth(res: NavResult) -> SmoothResult:
         raise ValueError("res: the forward run was made with store_for_smoother=False; nothing to smooth")
     K = st.idx.size
     n = res.layout.n
-    est = res.layout.estimated_mask
+    e = np.flatnonzero(res.layout.estimated_mask).astype(np.int64)
+    if not np.array_equal(e[:9], np.arange(9)):
+        raise ValueError("res.layout: the smoother needs dx, dv, psi estimated and first")
     d = np.zeros((K, n))
     Pd = np.zeros((K, n))
     Pn = np.zeros((K, 9, 9))
@@ -224,26 +251,17 @@ def rts_smooth(res: NavResult) -> SmoothResult:
     def post(k):
         return P_full[st.post[k]] if st.post[k] >= 0 else st.P_prior[k]
 
-    Ps = np.array(post(K - 1), dtype=float, order="C")
-    Pd[-1] = np.diag(Ps)
+    Ps = np.ascontiguousarray(post(K - 1)[np.ix_(e, e)], dtype=float)
+    Pd[-1] = np.diag(post(K - 1))
     Pn[-1] = Ps[:9, :9]
     k = K - 2
     while k >= 0:
-        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, est, d, Pd, Pn, Ps, k)
+        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, e, d, Pd, Pn, Ps, k)
         if k < 0:
             break
-        # P_{k+1}- not positive definite: least squares for this epoch (numpy), then on
-        P_post = post(k)
-        full = P_post * st.d[k + 1][:, None]
-        full[:9] = st.A[k + 1] @ P_post
-        Pp = st.P_prior[k + 1]
-        C = np.linalg.lstsq(Pp, full, rcond=None)[0].T
-        dk = C @ (d[k + 1] + st.dx[k + 1])
-        dk[~est] = 0.0
-        d[k] = dk
-        Ps = P_post + C @ (Ps - Pp) @ C.T
-        Ps = np.ascontiguousarray(0.5 * (Ps + Ps.T))
-        Pd[k] = np.diag(Ps)
+        Ps = _lstsq_epoch(st, e, post(k), d, Ps, k)
+        Pd[k] = np.diag(post(k))
+        Pd[k, e] = np.diag(Ps)
         Pn[k] = Ps[:9, :9]
         k -= 1
     idx = np.asarray(st.idx)
