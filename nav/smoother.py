@@ -19,18 +19,30 @@ and the smoothed nominal is the forward solution corrected by ``d_k`` (position,
 attitude ``exp([psi x]) R_eb``, the estimated sensor and misalignment groups).
 
 Considered (Schmidt) states are not estimated by the forward filter and are not estimated by the
-smoother either: their components of ``d_k`` are held at zero (so they do not feed back into the
-estimated states through the next step's recursion). The covariance recursion is the standard one
-applied to the full state; with Schmidt gains it is an approximation (the Schmidt covariance is
-not the optimal one RTS assumes), documented here and checked in tests/test_smoother.py by the
-smoothed errors' consistency on a simulated coast.
+smoother either. The recursion runs over the estimated states ``e`` alone, with the considered
+states marginalised into its process noise. The Schmidt covariance is not that of an optimal
+filter: its update lowers the estimated block (``P+[e, e] <= P-[e, e]``) but leaves the
+estimated/considered cross terms indefinite, and the considered states' share of the propagation,
+``Q = P_{k+1}-[e, e] - Phi_ee P_k+[e, e] Phi_ee^T``, can be indefinite too. Used as they are, the
+full-state gain (or the one with Q indefinite) feeds those cross terms back at every epoch; with
+small white process noise nothing damps it, and the smoothed position drifts by hundreds of meters
+while the smoothed covariance loses definiteness. The smoother therefore uses its own prior::
+
+    Pp_k+1 = Phi_ee P_k+[e, e] Phi_ee^T + Q+,    Q+ the positive semidefinite part of Q
+    C_k    = P_k+[e, e] Phi_ee^T Pp_k+1^-1
+    d_k[e] = C_k (d_k+1 + delta_k+1)[e],   d_k[considered] = 0
+    P_k^s  = P_k+[e, e] + C_k (P_k+1^s - Pp_k+1) C_k^T
+
+``Pp >= P_{k+1}-[e, e] >= P_{k+1}+[e, e] >= P_{k+1}^s`` and ``Pp >= Phi_ee P_k+ Phi_ee^T``, so
+``P_k^s = (P_k+ - C Pp C^T) + C P_k+1^s C^T`` is positive semidefinite and never above the forward
+``P_k+[e, e]`` (by induction from ``P_N^s = P_N+``). Without considered states and with the
+covariance as propagated, ``Q+ = Q`` and this is the textbook recursion. The considered states'
+smoothed variances are the forward ones. Checked in tests/test_smoother.py.
 
 Implementation: the backward pass over the forward run's store (:class:`nav.navigator.SmootherStore`)
-is one numba kernel, :func:`rts_kernel`: per epoch a Cholesky factorisation of ``P_{k+1}-``, the
-gain from two triangular solves with ``Phi P_k+`` (whose structure, 9 dense rows and a diagonal,
-is exploited) and the covariance recursion, all in preallocated (n, n) work arrays. Plain loops
-instead of BLAS calls: for n ~ 45 the per-call overhead and OpenBLAS's threading on small
-matrices (which stalls when the cores are busy) cost more than the arithmetic.
+is one numba kernel, :func:`rts_kernel`: per epoch the smoother's prior (one symmetric
+eigendecomposition of Q), a Cholesky factorisation of it, the gain from two triangular solves with
+``Phi_ee P_k+[e, e]`` and the covariance recursion, all in preallocated (ne, ne) work arrays.
 """
 from __future__ import annotations
 
@@ -127,29 +139,38 @@ def _chol_solve(U, B):
             B[i, c] *= inv
 
 
-@nb.njit(cache=True, nogil=True, fastmath={"contract"})
-def _cross_estimated(Ak, dk, Pk, e, Ct):
-    """``Ct = (Phi P_post)[e, e]``: the covariance of the estimated states at k+1 with those at k,
-    Phi's rows 0..8 dense (``Ak``), the others diagonal (``dk``); every state's column of P_post
-    enters the navigation rows (the considered states drive the estimated ones)."""
+@nb.njit(cache=True, nogil=True)
+def _smoother_prior(Ak, dk, Pk, P_next, e, Phi, Pe, Ct, Pp):
+    """The estimated states' transition ``Phi = Phi[e, e]`` (rows 0..8 from ``Ak``, the others
+    diagonal ``dk``), ``Pe = P_post[e, e]``, ``Ct = Phi Pe`` and the smoother's prior
+    ``Pp = Phi Pe Phi^T + Q+`` with ``Q+`` the positive semidefinite part of
+    ``Q = P_{k+1}-[e, e] - Phi Pe Phi^T`` (module docstring)."""
     ne = e.size
     for a in range(ne):
         r = e[a]
         for b in range(ne):
-            Ct[a, b] = 0.0
-        if r < 9:
-            for q in range(ne):
-                c = Ak[r, e[q]]
-                if c != 0.0:
-                    for b in range(ne):
-                        Ct[a, b] += c * Pk[e[q], e[b]]
-        else:
-            c = dk[r]
-            for b in range(ne):
-                Ct[a, b] = c * Pk[r, e[b]]
+            Pe[a, b] = Pk[r, e[b]]
+            Phi[a, b] = Ak[r, e[b]] if r < 9 else (dk[r] if b == a else 0.0)
+    np.dot(Phi, Pe, Ct)
+    M = np.dot(Ct, Phi.T)
+    Q = np.empty((ne, ne))
+    for a in range(ne):
+        for b in range(ne):
+            Q[a, b] = 0.5 * (P_next[e[a], e[b]] + P_next[e[b], e[a]]) - 0.5 * (M[a, b] + M[b, a])
+    w, V = np.linalg.eigh(Q)
+    for a in range(ne):
+        w[a] = max(w[a], 0.0)
+    for a in range(ne):
+        for b in range(a, ne):
+            s = 0.0
+            for c in range(ne):
+                s += V[a, c] * w[c] * V[b, c]
+            v = 0.5 * (M[a, b] + M[b, a]) + s
+            Pp[a, b] = v
+            Pp[b, a] = v
 
 
-@nb.njit(cache=True, nogil=True, fastmath={"contract"})
+@nb.njit(cache=True, nogil=True)
 def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
     """Backward RTS pass of :func:`rts_smooth` over the estimated states ``e`` (module docstring)
     from epoch ``k_start`` down to 0.
@@ -166,24 +187,23 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
     Returns
     -------
     int
-        -1 when done, or the epoch k where ``P_{k+1}-[e, e]`` is not positive definite (nothing
+        -1 when done, or the epoch k where the smoother's prior is not positive definite (nothing
         written for it): the caller solves that epoch by least squares and continues from k - 1.
     """
     n, ne = P_prior.shape[1], e.size
     L = np.empty((ne, ne))
     Ct = np.empty((ne, ne))
     Pp = np.empty((ne, ne))
+    Pe = np.empty((ne, ne))
+    Phi = np.empty((ne, ne))
     Dl = np.empty((ne, ne))
     X = np.empty((ne, ne))
     w = np.empty(ne)
     for k in range(k_start, -1, -1):
         j = post[k]
         Pk = P_full[j] if j >= 0 else P_prior[k]
-        for a in range(ne):
-            for b in range(ne):
-                Pp[a, b] = P_prior[k + 1, e[a], e[b]]
-        _cross_estimated(A[k + 1], dphi[k + 1], Pk, e, Ct)
-        # C^T = Pp^-1 (Phi P_post)[e, e] (Pp symmetric)
+        _smoother_prior(A[k + 1], dphi[k + 1], Pk, P_prior[k + 1], e, Phi, Pe, Ct, Pp)
+        # C^T = Pp^-1 Phi Pe (Pp symmetric)
         if not _cholesky_upper(Pp, L):
             return k
         _chol_solve(L, Ct)
@@ -197,7 +217,7 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
             if c != 0.0:
                 for a in range(ne):
                     d[k, e[a]] += Ct[p, a] * c
-        # Ps = P_post + C (Ps_next - Pp) C^T, numpy's left-to-right order of C @ D @ C.T
+        # Ps = Pe + C (Ps_next - Pp) C^T, numpy's left-to-right order of C @ D @ C.T
         for a in range(ne):
             for b in range(ne):
                 Dl[a, b] = Ps[a, b] - Pp[a, b]
@@ -205,7 +225,7 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
         np.dot(X, Ct, Dl)
         for a in range(ne):
             for b in range(ne):
-                Ps[a, b] = Pk[e[a], e[b]] + Dl[a, b]
+                Ps[a, b] = Pe[a, b] + Dl[a, b]
         for a in range(ne):
             for b in range(a + 1, ne):
                 v = 0.5 * (Ps[a, b] + Ps[b, a])
@@ -220,16 +240,15 @@ def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
 
 
 def _lstsq_epoch(st, e, post_k, d, Ps, k):
-    """Epoch k of the backward pass by least squares (``P_{k+1}-[e, e]`` not positive definite):
-    writes ``d[k]`` and returns the smoothed covariance of the estimated states."""
-    Pe = post_k[np.ix_(e, e)]
-    cross = Pe * st.d[k + 1][e][:, None]
-    cross[:9] = st.A[k + 1][:, e] @ Pe
-    Pp = st.P_prior[k + 1][np.ix_(e, e)]
-    C = np.linalg.lstsq(Pp, cross, rcond=None)[0].T
+    """Epoch k of the backward pass by least squares (the smoother's prior not positive
+    definite): writes ``d[k]`` and returns the smoothed covariance of the estimated states."""
+    ne = e.size
+    Phi, Pe, Ct, Pp = (np.empty((ne, ne)) for _ in range(4))
+    _smoother_prior(st.A[k + 1], st.d[k + 1], post_k, st.P_prior[k + 1], e, Phi, Pe, Ct, Pp)
+    C = np.linalg.lstsq(Pp, Ct, rcond=None)[0].T
     d[k] = 0.0
     d[k, e] = C @ (d[k + 1, e] + st.dx[k + 1, e])
-    Ps = post_k[np.ix_(e, e)] + C @ (Ps - Pp) @ C.T
+    Ps = Pe + C @ (Ps - Pp) @ C.T
     return np.ascontiguousarray(0.5 * (Ps + Ps.T))
 
 

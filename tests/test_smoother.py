@@ -72,9 +72,12 @@ def test_rts_kernel_equals_numpy_recursion():
     Ps = post(K - 1)[ee]; Pd[-1] = np.diag(post(K - 1)); Pn[-1] = Ps[:9, :9]
     for k in range(K - 2, -1, -1):
         Phi = st.transition(k + 1).full()[ee]
-        C = post(k)[ee] @ Phi.T @ np.linalg.inv(st.P_prior[k + 1][ee])
+        M = Phi @ post(k)[ee] @ Phi.T
+        lam, V = np.linalg.eigh(st.P_prior[k + 1][ee] - M)
+        Pp = M + (V * np.maximum(lam, 0)) @ V.T
+        C = post(k)[ee] @ Phi.T @ np.linalg.inv(Pp)
         d[k, e] = C @ (d[k + 1, e] + st.dx[k + 1, e])
-        Ps = post(k)[ee] + C @ (Ps - st.P_prior[k + 1][ee]) @ C.T
+        Ps = post(k)[ee] + C @ (Ps - Pp) @ C.T
         Pd[k] = np.diag(post(k)); Pd[k, e] = np.diag(Ps); Pn[k] = Ps[:9, :9]
     scale = np.abs(d).max(axis=0)
     assert np.all(np.abs(sm.d - d) <= 1e-10 * scale + 1e-300)
