@@ -35,9 +35,14 @@ while the smoothed covariance loses definiteness. The smoother therefore uses it
 
 ``Pp >= P_{k+1}-[e, e] >= P_{k+1}+[e, e] >= P_{k+1}^s`` and ``Pp >= Phi_ee P_k+ Phi_ee^T``, so
 ``P_k^s = (P_k+ - C Pp C^T) + C P_k+1^s C^T`` is positive semidefinite and never above the forward
-``P_k+[e, e]`` (by induction from ``P_N^s = P_N+``). Without considered states and with the
-covariance as propagated, ``Q+ = Q`` and this is the textbook recursion. The considered states'
-smoothed variances are the forward ones. Checked in tests/test_smoother.py.
+``P_k+[e, e]`` (by induction from ``P_N^s = P_N+``; the middle inequality is the Schmidt update's
+on the estimated block, which the rotation of the misalignment covariance after a feedback,
+:meth:`nav.filter_state.FilterState.reset_rotations`, keeps only to first order). Without
+considered states and with the covariance as propagated, ``Q+ = Q`` and this is the textbook
+recursion. The considered states' smoothed variances are the forward ones. Limitation: in the
+smoother's model a considered state's effect is white, so an estimated state that it confounds
+(a tilt against an accelerometer bias both driving one velocity axis) takes part of that effect,
+and its smoothed variance is optimistic there. Checked in tests/test_smoother.py.
 
 Implementation: the backward pass over the forward run's store (:class:`nav.navigator.SmootherStore`)
 is one numba kernel, :func:`rts_kernel`: per epoch the smoother's prior (one symmetric
