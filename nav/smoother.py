@@ -19,18 +19,35 @@ and the smoothed nominal is the forward solution corrected by ``d_k`` (position,
 attitude ``exp([psi x]) R_eb``, the estimated sensor and misalignment groups).
 
 Considered (Schmidt) states are not estimated by the forward filter and are not estimated by the
-smoother either: their components of ``d_k`` are held at zero (so they do not feed back into the
-estimated states through the next step's recursion). The covariance recursion is the standard one
-applied to the full state; with Schmidt gains it is an approximation (the Schmidt covariance is
-not the optimal one RTS assumes), documented here and checked in tests/test_smoother.py by the
-smoothed errors' consistency on a simulated coast.
+smoother either. The recursion runs over the estimated states ``e`` alone, with the considered
+states marginalised into its process noise. The Schmidt covariance is not that of an optimal
+filter: its update lowers the estimated block (``P+[e, e] <= P-[e, e]``) but leaves the
+estimated/considered cross terms indefinite, and the considered states' share of the propagation,
+``Q = P_{k+1}-[e, e] - Phi_ee P_k+[e, e] Phi_ee^T``, can be indefinite too. Used as they are, the
+full-state gain (or the one with Q indefinite) feeds those cross terms back at every epoch; with
+small white process noise nothing damps it, and the smoothed position drifts by hundreds of meters
+while the smoothed covariance loses definiteness. The smoother therefore uses its own prior::
+
+    Pp_k+1 = Phi_ee P_k+[e, e] Phi_ee^T + Q+,    Q+ the positive semidefinite part of Q
+    C_k    = P_k+[e, e] Phi_ee^T Pp_k+1^-1
+    d_k[e] = C_k (d_k+1 + delta_k+1)[e],   d_k[considered] = 0
+    P_k^s  = P_k+[e, e] + C_k (P_k+1^s - Pp_k+1) C_k^T
+
+``Pp >= P_{k+1}-[e, e] >= P_{k+1}+[e, e] >= P_{k+1}^s`` and ``Pp >= Phi_ee P_k+ Phi_ee^T``, so
+``P_k^s = (P_k+ - C Pp C^T) + C P_k+1^s C^T`` is positive semidefinite and never above the forward
+``P_k+[e, e]`` (by induction from ``P_N^s = P_N+``; the middle inequality is the Schmidt update's
+on the estimated block, which the rotation of the misalignment covariance after a feedback,
+:meth:`nav.filter_state.FilterState.reset_rotations`, keeps only to first order). Without
+considered states and with the covariance as propagated, ``Q+ = Q`` and this is the textbook
+recursion. The considered states' smoothed variances are the forward ones. Limitation: in the
+smoother's model a considered state's effect is white, so an estimated state that it confounds
+(a tilt against an accelerometer bias both driving one velocity axis) takes part of that effect,
+and its smoothed variance is optimistic there. Checked in tests/test_smoother.py.
 
 Implementation: the backward pass over the forward run's store (:class:`nav.navigator.SmootherStore`)
-is one numba kernel, :func:`rts_kernel`: per epoch a Cholesky factorisation of ``P_{k+1}-``, the
-gain from two triangular solves with ``Phi P_k+`` (whose structure, 9 dense rows and a diagonal,
-is exploited) and the covariance recursion, all in preallocated (n, n) work arrays. Plain loops
-instead of BLAS calls: for n ~ 45 the per-call overhead and OpenBLAS's threading on small
-matrices (which stalls when the cores are busy) cost more than the arithmetic.
+is one numba kernel, :func:`rts_kernel`: per epoch the smoother's prior (one symmetric
+eigendecomposition of Q), a Cholesky factorisation of it, the gain from two triangular solves with
+``Phi_ee P_k+[e, e]`` and the covariance recursion, all in preallocated (ne, ne) work arrays.
 """
 from __future__ import annotations
 
@@ -127,85 +144,117 @@ def _chol_solve(U, B):
             B[i, c] *= inv
 
 
-@nb.njit(cache=True, nogil=True, fastmath={"contract"})
-def rts_kernel(P_prior, post, P_full, A, dphi, dxs, est, d, Pd, Pn, Ps, k_start):
-    """Backward RTS pass of :func:`rts_smooth` (module docstring) from epoch ``k_start`` down to 0.
+@nb.njit(cache=True, nogil=True)
+def _smoother_prior(Ak, dk, Pk, P_next, e, Phi, Pe, Ct, Pp):
+    """The estimated states' transition ``Phi = Phi[e, e]`` (rows 0..8 from ``Ak``, the others
+    diagonal ``dk``), ``Pe = P_post[e, e]``, ``Ct = Phi Pe`` and the smoother's prior
+    ``Pp = Phi Pe Phi^T + Q+`` with ``Q+`` the positive semidefinite part of
+    ``Q = P_{k+1}-[e, e] - Phi Pe Phi^T`` (module docstring)."""
+    ne = e.size
+    for a in range(ne):
+        r = e[a]
+        for b in range(ne):
+            Pe[a, b] = Pk[r, e[b]]
+            Phi[a, b] = Ak[r, e[b]] if r < 9 else (dk[r] if b == a else 0.0)
+    np.dot(Phi, Pe, Ct)
+    M = np.dot(Ct, Phi.T)
+    Q = np.empty((ne, ne))
+    for a in range(ne):
+        for b in range(ne):
+            Q[a, b] = 0.5 * (P_next[e[a], e[b]] + P_next[e[b], e[a]]) - 0.5 * (M[a, b] + M[b, a])
+    w, V = np.linalg.eigh(Q)
+    for a in range(ne):
+        w[a] = max(w[a], 0.0)
+    for a in range(ne):
+        for b in range(a, ne):
+            s = 0.0
+            for c in range(ne):
+                s += V[a, c] * w[c] * V[b, c]
+            v = 0.5 * (M[a, b] + M[b, a]) + s
+            Pp[a, b] = v
+            Pp[b, a] = v
+
+
+@nb.njit(cache=True, nogil=True)
+def rts_kernel(P_prior, post, P_full, A, dphi, dxs, e, d, Pd, Pn, Ps, k_start):
+    """Backward RTS pass of :func:`rts_smooth` over the estimated states ``e`` (module docstring)
+    from epoch ``k_start`` down to 0.
 
     Parameters
     ----------
     P_prior : (K, n, n); post : (K,) row of ``P_full`` with the posterior (-1: the prior);
     A, dphi : (K, 9, n), (K, n) transition from k-1 to k; dxs : (K, n) fed-back corrections;
-    est : (n,) bool; d : (K, n) smoothed errors (row ``k_start + 1`` given, rows below written);
-    Pd : (K, n) smoothed variances (written); Pn : (K, 9, 9) smoothed navigation block (written);
-    Ps : (n, n) smoothed covariance at ``k_start + 1``, updated in place.
+    e : (ne,) indices of the estimated states (0..8 first); d : (K, n) smoothed errors (row
+    ``k_start + 1`` given, rows below written); Pd : (K, n) smoothed variances (written; the
+    considered states keep the forward ones); Pn : (K, 9, 9) smoothed navigation block (written);
+    Ps : (ne, ne) smoothed covariance of the estimated states at ``k_start + 1``, updated in place.
 
     Returns
     -------
     int
-        -1 when done, or the epoch k where ``P_{k+1}-`` is not positive definite (nothing written
-        for it): the caller solves that epoch by least squares and continues from k - 1.
+        -1 when done, or the epoch k where the smoother's prior is not positive definite (nothing
+        written for it): the caller solves that epoch by least squares and continues from k - 1.
     """
-    n = P_prior.shape[1]
-    L = np.empty((n, n))
-    Ct = np.empty((n, n))
-    Dl = np.empty((n, n))
-    X = np.empty((n, n))
-    w = np.empty(n)
+    n, ne = P_prior.shape[1], e.size
+    L = np.empty((ne, ne))
+    Ct = np.empty((ne, ne))
+    Pp = np.empty((ne, ne))
+    Pe = np.empty((ne, ne))
+    Phi = np.empty((ne, ne))
+    Dl = np.empty((ne, ne))
+    X = np.empty((ne, ne))
+    w = np.empty(ne)
     for k in range(k_start, -1, -1):
         j = post[k]
-        Pp = P_prior[k + 1]
         Pk = P_full[j] if j >= 0 else P_prior[k]
-        Ak = A[k + 1]
-        dk = dphi[k + 1]
-        # Ct = Phi P_post: rows 0..8 A P_post, the others d_i P_post[i]
-        for a in range(9):
-            for b in range(n):
-                Ct[a, b] = 0.0
-            for p in range(n):
-                c = Ak[a, p]
-                if c != 0.0:
-                    for b in range(n):
-                        Ct[a, b] += c * Pk[p, b]
-        for a in range(9, n):
-            c = dk[a]
-            for b in range(n):
-                Ct[a, b] = c * Pk[a, b]
-        # C^T = Pp^-1 Phi P_post (Pp symmetric)
+        _smoother_prior(A[k + 1], dphi[k + 1], Pk, P_prior[k + 1], e, Phi, Pe, Ct, Pp)
+        # C^T = Pp^-1 Phi Pe (Pp symmetric)
         if not _cholesky_upper(Pp, L):
             return k
         _chol_solve(L, Ct)
-        # d_k = C (d_{k+1} + delta_{k+1}), considered components held at zero
-        for a in range(n):
-            w[a] = d[k + 1, a] + dxs[k + 1, a]
+        # d_k = C (d_{k+1} + delta_{k+1}) on the estimated states; the considered ones stay zero
+        for a in range(ne):
+            w[a] = d[k + 1, e[a]] + dxs[k + 1, e[a]]
         for a in range(n):
             d[k, a] = 0.0
-        for p in range(n):
+        for p in range(ne):
             c = w[p]
             if c != 0.0:
-                for a in range(n):
-                    d[k, a] += Ct[p, a] * c
-        for a in range(n):
-            if not est[a]:
-                d[k, a] = 0.0
-        # Ps = P_post + C (Ps_next - Pp) C^T
-        for a in range(n):
-            for b in range(n):
+                for a in range(ne):
+                    d[k, e[a]] += Ct[p, a] * c
+        # Ps = Pe + C (Ps_next - Pp) C^T, numpy's left-to-right order of C @ D @ C.T
+        for a in range(ne):
+            for b in range(ne):
                 Dl[a, b] = Ps[a, b] - Pp[a, b]
-        # C (Ps_next - Pp) C^T = (Ct^T Dl) Ct, numpy's left-to-right order of C @ D @ C.T (two
-        # 45 x 45 BLAS products: single-threaded at this size), then P_post is added
         np.dot(Ct.T, Dl, X)
         np.dot(X, Ct, Dl)
-        for a in range(n):
-            for b in range(n):
-                Ps[a, b] = Pk[a, b] + Dl[a, b]
-        for a in range(n):
-            for b in range(a + 1, n):
+        for a in range(ne):
+            for b in range(ne):
+                Ps[a, b] = Pe[a, b] + Dl[a, b]
+        for a in range(ne):
+            for b in range(a + 1, ne):
                 v = 0.5 * (Ps[a, b] + Ps[b, a])
                 Ps[a, b] = v
                 Ps[b, a] = v
-            Pd[k, a] = Ps[a, a]
+        for a in range(n):
+            Pd[k, a] = Pk[a, a]
+        for a in range(ne):
+            Pd[k, e[a]] = Ps[a, a]
         Pn[k] = Ps[:9, :9]
     return -1
+
+
+def _lstsq_epoch(st, e, post_k, d, Ps, k):
+    """Epoch k of the backward pass by least squares (the smoother's prior not positive
+    definite): writes ``d[k]`` and returns the smoothed covariance of the estimated states."""
+    ne = e.size
+    Phi, Pe, Ct, Pp = (np.empty((ne, ne)) for _ in range(4))
+    _smoother_prior(st.A[k + 1], st.d[k + 1], post_k, st.P_prior[k + 1], e, Phi, Pe, Ct, Pp)
+    C = np.linalg.lstsq(Pp, Ct, rcond=None)[0].T
+    d[k] = 0.0
+    d[k, e] = C @ (d[k + 1, e] + st.dx[k + 1, e])
+    Ps = Pe + C @ (Ps - Pp) @ C.T
+    return np.ascontiguousarray(0.5 * (Ps + Ps.T))
 
 
 def rts_smooth(res: NavResult) -> SmoothResult:
@@ -215,7 +264,9 @@ def rts_smooth(res: NavResult) -> SmoothResult:
         raise ValueError("res: the forward run was made with store_for_smoother=False; nothing to smooth")
     K = st.idx.size
     n = res.layout.n
-    est = res.layout.estimated_mask
+    e = np.flatnonzero(res.layout.estimated_mask).astype(np.int64)
+    if not np.array_equal(e[:9], np.arange(9)):
+        raise ValueError("res.layout: the smoother needs dx, dv, psi estimated and first")
     d = np.zeros((K, n))
     Pd = np.zeros((K, n))
     Pn = np.zeros((K, 9, 9))
@@ -224,26 +275,17 @@ def rts_smooth(res: NavResult) -> SmoothResult:
     def post(k):
         return P_full[st.post[k]] if st.post[k] >= 0 else st.P_prior[k]
 
-    Ps = np.array(post(K - 1), dtype=float, order="C")
-    Pd[-1] = np.diag(Ps)
+    Ps = np.ascontiguousarray(post(K - 1)[np.ix_(e, e)], dtype=float)
+    Pd[-1] = np.diag(post(K - 1))
     Pn[-1] = Ps[:9, :9]
     k = K - 2
     while k >= 0:
-        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, est, d, Pd, Pn, Ps, k)
+        k = rts_kernel(st.P_prior, st.post, P_full, st.A, st.d, st.dx, e, d, Pd, Pn, Ps, k)
         if k < 0:
             break
-        # P_{k+1}- not positive definite: least squares for this epoch (numpy), then on
-        P_post = post(k)
-        full = P_post * st.d[k + 1][:, None]
-        full[:9] = st.A[k + 1] @ P_post
-        Pp = st.P_prior[k + 1]
-        C = np.linalg.lstsq(Pp, full, rcond=None)[0].T
-        dk = C @ (d[k + 1] + st.dx[k + 1])
-        dk[~est] = 0.0
-        d[k] = dk
-        Ps = P_post + C @ (Ps - Pp) @ C.T
-        Ps = np.ascontiguousarray(0.5 * (Ps + Ps.T))
-        Pd[k] = np.diag(Ps)
+        Ps = _lstsq_epoch(st, e, post(k), d, Ps, k)
+        Pd[k] = np.diag(post(k))
+        Pd[k, e] = np.diag(Ps)
         Pn[k] = Ps[:9, :9]
         k -= 1
     idx = np.asarray(st.idx)
