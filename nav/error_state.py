@@ -2,15 +2,16 @@
 
 Order (groups switched ``"off"`` in the tuning are left out)::
 
-    dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w | g_w | psi_c[k] for each camera k
+    dx_e, dv_e, psi | b_f, b_w, s_f, m_f, s_w, m_w, n_w | g_w | psi_c[k] for each camera k
                     | dt_c[k] for each camera k | zeta[k, target] for each camera k and target
                     | h_e[k] for each camera k
 
 * ``dx_e, dv_e`` true minus estimated position and velocity in e [m, m/s];
 * ``psi`` attitude error in e, from the estimated to the true attitude (docs/conventions.md "Rotations");
 * ``b_f, b_w`` residual accelerometer / gyro bias (measurement minus truth after calibration);
-* ``s_f, s_w`` residual scale factors, ``m_f, m_w`` residual small-angle misalignments
-  (sensitivities in :mod:`nav.imu_errors`);
+* ``s_f, s_w`` residual scale factors, ``m_f, m_w`` residual small-angle misalignments, ``n_w``
+  the gyro triad's residual non-orthogonality (group ``gyro_nonorthogonality``, the symmetric
+  off-diagonal part of its axis misalignment; sensitivities in :mod:`nav.imu_errors`);
 * ``g_w`` Gauss-Markov gyro error [rad/s] (group ``gyro_gm``): a first-order process of
   correlation time ``Tuning.gyro_gm_tau_s`` that enters the attitude error as the bias does;
 * ``psi_c`` camera misalignment in b, ``R_bc_true = (I + [psi_c x]) R_bc_nominal`` (003 eq. (50));
@@ -34,13 +35,16 @@ import numba as nb
 import numpy as np
 
 from nav._kernels import skew
+from nav.imu_errors import nonorthogonality_jacobian
 from nav.tuning import Tuning
 
 #: number of leading states (dx, dv, psi) whose transition rows are dense; the others are diagonal
 N_NAV = 9
-IMU_GROUPS = ("accel_bias", "gyro_bias", "accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
+IMU_GROUPS = ("accel_bias", "gyro_bias", "accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment",
+              "gyro_nonorthogonality")
 #: the groups whose first column :func:`nav_transition` takes: the IMU groups and the Gauss-Markov gyro error
 TRANSITION_GROUPS = IMU_GROUPS + ("gyro_gm",)
+N_TRANSITION = len(TRANSITION_GROUPS)
 
 
 @dataclass(frozen=True)
@@ -161,8 +165,8 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge
         d(zeta)/dt = -zeta / T_c          (003 §6.3)
         d(h_e)/dt  = -h_e / tau_edge      (a constant when tau_edge is 0)
 
-    with ``delta_f = b_f + diag(f_b) s_f + [f_b x] m_f`` (and the same for the gyro,
-    :mod:`nav.imu_errors`); constants (biases, scale factors, misalignments, psi_c) have zero rows.
+    with ``delta_f = b_f + diag(f_b) s_f + [f_b x] m_f`` (and the same for the gyro, which also has
+    ``N(w_b) n_w``, :mod:`nav.imu_errors`); constants (biases, scale factors, misalignments, psi_c) have zero rows.
     """
     from nav.earth import OMEGA_IE_E
     n = layout.n
@@ -176,7 +180,8 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge
     F[ip, ip] = -W
     sens = {"accel_bias": (iv, np.eye(3)), "accel_scale": (iv, np.diag(f_b)),
             "accel_misalignment": (iv, skew(np.asarray(f_b, float))), "gyro_bias": (ip, np.eye(3)),
-            "gyro_scale": (ip, np.diag(w_b)), "gyro_misalignment": (ip, skew(np.asarray(w_b, float)))}
+            "gyro_scale": (ip, np.diag(w_b)), "gyro_misalignment": (ip, skew(np.asarray(w_b, float))),
+            "gyro_nonorthogonality": (ip, nonorthogonality_jacobian(w_b))}
     for name, (row, S) in sens.items():
         if layout.has(name):
             F[row, layout[name]] = -R_eb @ S
@@ -231,9 +236,10 @@ class BlockTransition:
 
 @nb.njit(cache=True)
 def nav_transition(x, R, f, w, dt, cols, n, W, GM, tau_w):
-    """Rows 0..8 of Phi = I + F dt + (F dt)^2/2 (see :func:`error_dynamics`); ``cols`` (7,) holds
+    """Rows 0..8 of Phi = I + F dt + (F dt)^2/2 (see :func:`error_dynamics`); ``cols`` (8,) holds
     the first column of accel_bias, gyro_bias, accel_scale, accel_misalignment, gyro_scale,
-    gyro_misalignment and the Gauss-Markov gyro error gyro_gm (-1: absent; ``TRANSITION_GROUPS``),
+    gyro_misalignment, gyro_nonorthogonality and the Gauss-Markov gyro error gyro_gm (-1: absent;
+    ``TRANSITION_GROUPS``),
     ``tau_w`` the latter's correlation time [s]. The (F dt)^2/2 term is the product over the
     navigation columns plus, for gyro_gm, ``-R dt (-dt / tau_w) / 2`` (its own decay)."""
     F = np.zeros((9, n))
@@ -255,21 +261,21 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM, tau_w):
     F[3, 7] = fe[2]; F[3, 8] = -fe[1]
     F[4, 6] = -fe[2]; F[4, 8] = fe[0]
     F[5, 6] = fe[1]; F[5, 7] = -fe[0]
-    for g in range(7):
+    for g in range(8):
         c = cols[g]
         if c < 0:
             continue
         row = 3 if (g == 0 or g == 2 or g == 3) else 6
         v = f if row == 3 else w
-        K = skew(v)
+        # -R K: K = [v x] (misalignments) or N(w) (non-orthogonality, nonorthogonality_jacobian)
+        K = skew(v) if g != 6 else np.array([[0.0, v[2], v[1]], [v[2], 0.0, v[0]], [v[1], v[0], 0.0]])
         for i in range(3):
             for j in range(3):
-                if g <= 1 or g == 6:
+                if g <= 1 or g == 7:
                     val = -R[i, j]
                 elif g == 2 or g == 4:
                     val = -R[i, j] * v[j]
                 else:
-                    # -R [v x], column j of [v x]
                     val = 0.0
                     for m in range(3):
                         val -= R[i, m] * K[m, j]
@@ -278,7 +284,7 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM, tau_w):
     A = Fd + 0.5 * (np.ascontiguousarray(Fd[:, :9]) @ Fd)
     for i in range(9):
         A[i, i] += 1.0
-    c = cols[6]
+    c = cols[7]
     if c >= 0:
         k2 = 0.5 * dt * dt / tau_w
         for i in range(3):
@@ -317,7 +323,7 @@ class TransitionBuilder:
 
 
 def transition_columns(layout: StateLayout) -> np.ndarray:
-    """(7,) int64 first column of each of ``TRANSITION_GROUPS`` (-1: absent), as
+    """(8,) int64 first column of each of ``TRANSITION_GROUPS`` (-1: absent), as
     :func:`nav_transition` reads them."""
     return np.array([layout[nm].start if layout.has(nm) else -1 for nm in TRANSITION_GROUPS], dtype=np.int64)
 

@@ -7,7 +7,7 @@ Gauss-Markov vector errors zeta and their latest P_c, camera clock offsets). The
 are packed so that the kernels take a few arrays instead of one argument per quantity:
 
 * ``nav`` (10,): x_e, v_e, q_eb (``x``, ``v``, ``q`` are views of it);
-* ``fed`` (flat): every fed-back estimate, viewed as ``cal_arr`` (6, 3) (the
+* ``fed`` (flat): every fed-back estimate, viewed as ``cal_arr`` (7, 3) (the
   :class:`nav.imu_errors.ImuCalibration` fields, in ``CAL_FIELDS`` order), ``R_bc`` (cameras, 3, 3),
   ``zeta`` (groups, 3), ``clk_hat`` (cameras,), ``edge_hat`` (cameras,), the Earth edge
   heights [m], and with the Gauss-Markov gyro error in the layout ``gw_hat`` (3,) [rad/s];
@@ -17,7 +17,7 @@ are packed so that the kernels take a few arrays instead of one argument per qua
   A_f and row 3 is b_f, ``[1]`` the same for the gyro, whose row 3 is ``b_w + gw_hat``
   (:func:`biases_into_calibration`);
 * ``model`` (3 + n,): omega_ie, GM, T_c and the white process-noise rate of every state;
-  ``gm_idx`` (7 + groups,) int64: the first column of the six IMU error groups and of the
+  ``gm_idx`` (8 + groups,) int64: the first column of the seven IMU error groups and of the
   Gauss-Markov gyro error (-1: absent, as :func:`nav.error_state.nav_transition` reads them) and
   of every zeta group.
 
@@ -32,16 +32,17 @@ import numpy as np
 from nav import ins
 from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R, skew
 from nav.earth import GM, OMEGA_E
-from nav.error_state import (StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
+from nav.error_state import (N_TRANSITION, StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
                              transition_columns)
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.tuning import Tuning
 
-CAL_FIELDS = ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w")  #: ImuCalibration fields, rows of ``cal_arr``
+CAL_FIELDS = ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w", "n_w")  #: ImuCalibration fields, rows of ``cal_arr``
+N_CAL = 3 * len(CAL_FIELDS)  #: length of the calibration at the start of ``fed``
 #: feedback operations: add 3 values, rotate a 3x3, add 1 value, add 3 values into the gyro's error
 FB_ADD3, FB_ROTATE, FB_ADD1, FB_GYRO = 0, 1, 2, 3
-_AFFINE = ("accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment")
+_AFFINE = ("accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment", "gyro_nonorthogonality")
 
 
 def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndarray:
@@ -51,7 +52,7 @@ def feedback_table(layout: StateLayout, n_cam: int, zeta_names: list) -> np.ndar
     adds into its estimate, a clock offset into the camera's offset, an edge height into the
     camera's height and the Gauss-Markov gyro error into ``gw_hat``, which the INS subtracts with
     the gyro bias (layout of ``fed`` as in the module docstring)."""
-    o_cam, o_zeta = 18, 18 + 9 * n_cam
+    o_cam, o_zeta = N_CAL, N_CAL + 9 * n_cam
     o_clk = o_zeta + 3 * len(zeta_names)
     o_edge = o_clk + n_cam
     rows = []
@@ -102,12 +103,12 @@ class FilterState:
         zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
         nz = len(zeta_groups)
         self.gyro_gm = gyro_gm_indices(layout)
-        self.fed = np.zeros(18 + 9 * n_cam + 3 * nz + 2 * n_cam + self.gyro_gm.size)
-        self.cal_arr = self.fed[:18].reshape(6, 3)
-        self.R_bc = self.fed[18:18 + 9 * n_cam].reshape(n_cam, 3, 3)
+        self.fed = np.zeros(N_CAL + 9 * n_cam + 3 * nz + 2 * n_cam + self.gyro_gm.size)
+        self.cal_arr = self.fed[:N_CAL].reshape(len(CAL_FIELDS), 3)
+        self.R_bc = self.fed[N_CAL:N_CAL + 9 * n_cam].reshape(n_cam, 3, 3)
         self.R_bc[:] = R_bc
-        self.zeta = self.fed[18 + 9 * n_cam:18 + 9 * n_cam + 3 * nz].reshape(nz, 3)
-        o_clk = 18 + 9 * n_cam + 3 * nz
+        self.zeta = self.fed[N_CAL + 9 * n_cam:N_CAL + 9 * n_cam + 3 * nz].reshape(nz, 3)
+        o_clk = N_CAL + 9 * n_cam + 3 * nz
         self.clk_hat = self.fed[o_clk:o_clk + n_cam]
         self.clk0 = clk0
         self.edge_hat = self.fed[o_clk + n_cam:o_clk + 2 * n_cam]
@@ -243,15 +244,15 @@ def propagate_block(nav, cal_m, ts, fw, traj, k, k_end, avg, model, gm_idx, P_c,
     ins.ins_kernel(nav, ts, fw, k, k_end, cal_m, traj, stats, avg)
     dt = ts[k_end] - ts[k]
     n = P.shape[0]
-    A = nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:7], n, model[0], model[1],
-                       tau_w)
+    A = nav_transition(x, quat_to_R(q), stats[:3].copy(), stats[3:].copy(), dt, gm_idx[:N_TRANSITION], n,
+                       model[0], model[1], tau_w)
     phi = np.exp(-dt / model[2])
     for i in range(9):
         for j in range(n):
             A_out[i, j] = A[i, j]
     for i in range(n):
         d_out[i] = 1.0
-    zeta_start = gm_idx[7:]
+    zeta_start = gm_idx[N_TRANSITION:]
     for g in range(zeta_start.size):
         for i in range(3):
             d_out[zeta_start[g] + i] = phi
@@ -266,7 +267,7 @@ def feedback_kernel(dx, nav, fed, fb):
     """Closed-loop correction of the nominal state with the estimated errors ``dx``, in place:
     ``x += dx``, ``v += dv``, ``R_eb <- exp([psi x]) R_eb`` (as a quaternion), then every row of
     the feedback table ``fb`` (:func:`feedback_table`) on ``fed``. Returns whether the IMU
-    calibration (the first 18 values of ``fed``) changed."""
+    calibration (the first ``N_CAL`` values of ``fed``) changed."""
     for i in range(3):
         nav[i] += dx[i]
         nav[3 + i] += dx[3 + i]
@@ -279,7 +280,7 @@ def feedback_kernel(dx, nav, fed, fb):
         if op == FB_ADD3 or op == FB_GYRO:
             for i in range(3):
                 fed[o + i] += dx[st + i]
-            changed = changed or o < 18 or op == FB_GYRO
+            changed = changed or o < N_CAL or op == FB_GYRO
         elif op == FB_ROTATE:
             R = np.empty((3, 3))
             for i in range(3):

@@ -3,14 +3,24 @@
 Measurement model for each triad (accelerometer ``f``, gyro ``w``), to first order::
 
     f_meas = f_true + b_f + diag(f_true) s_f + [f_true x] m_f + noise
-    w_meas = w_true + b_w + diag(w_true) s_w + [w_true x] m_w + noise
+    w_meas = w_true + b_w + diag(w_true) s_w + [w_true x] m_w + S(n_w) w_true + noise
 
 ``s`` are scale-factor errors, ``m`` a small-angle misalignment of the sensor triad (the sensor
-axes rotated by ``-m`` from b, so ``(I - [m x]) f = f + [f x] m``). The filter's error states
-are the residuals after calibration with the current estimates, so the corrected measurement's
-error is ``delta_f = b_f + diag(f) s_f + [f x] m_f`` (same for the gyro): its Jacobian with
-respect to the bias, scale and misalignment groups is ``I``, ``diag(f)``, ``[f x]``
-(:func:`nav.error_state.error_dynamics`).
+axes rotated by ``-m`` from b, so ``(I - [m x]) f = f + [f x] m``). ``n_w = (n_yz, n_xz, n_xy)`` is
+the gyro triad's non-orthogonality: the symmetric off-diagonal matrix
+
+    S(n) = [[0, n_xy, n_xz], [n_xy, 0, n_yz], [n_xz, n_yz, 0]].
+
+A triad whose six off-diagonal terms N_ij are independent (``M = I + diag(s) + N``, as
+:mod:`scenarios.sim.imu` draws them) holds both: ``N = -[m x] + S(n)`` with
+``m = ((N_yz - N_zy) / 2, (N_zx - N_xz) / 2, (N_xy - N_yx) / 2)`` and ``n_ij = (N_ij + N_ji) / 2``
+(:func:`split_misalignment`); six independent terms of 1-sigma ``sigma`` give each of ``m`` and
+``n`` a 1-sigma of ``sigma / sqrt(2)``, and the rotation ``m`` alone leaves the other half of their
+variance out. The filter's error states are the residuals after calibration with the current
+estimates, so the corrected measurement's error is ``delta_f = b_f + diag(f) s_f + [f x] m_f``
+(the gyro's adds ``S(n_w) w = N(w) n_w``): its Jacobian with respect to the bias, scale,
+misalignment and non-orthogonality groups is ``I``, ``diag(f)``, ``[f x]``, ``N(w)``
+(:func:`nonorthogonality_jacobian`, :func:`nav.error_state.error_dynamics`).
 """
 from __future__ import annotations
 
@@ -31,22 +41,47 @@ class ImuCalibration:
     m_f: np.ndarray = field(default_factory=lambda: np.zeros(3))
     s_w: np.ndarray = field(default_factory=lambda: np.zeros(3))
     m_w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    n_w: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def copy(self) -> "ImuCalibration":
-        return ImuCalibration(*(getattr(self, k).copy() for k in ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w")))
+        return ImuCalibration(*(getattr(self, k).copy() for k in ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w", "n_w")))
 
     def matrices(self):
         """Affine calibration ``x_true = A (x_meas - b)`` for accel and gyro: (A_f, b_f, A_w, b_w).
 
-        ``A = (I + diag(s) - [m x])^-1``: the exact inverse of the first-order model above.
+        ``A = (I + diag(s) - [m x] + S(n))^-1`` (``n = 0`` for the accelerometer): the exact inverse
+        of the first-order model above.
         """
         A_f = np.linalg.inv(np.eye(3) + np.diag(self.s_f) - skew(np.asarray(self.m_f, float)))
-        A_w = np.linalg.inv(np.eye(3) + np.diag(self.s_w) - skew(np.asarray(self.m_w, float)))
+        A_w = np.linalg.inv(np.eye(3) + np.diag(self.s_w) - skew(np.asarray(self.m_w, float))
+                            + symmetric_offdiagonal(self.n_w))
         return A_f, self.b_f.copy(), A_w, self.b_w.copy()
 
 
 GROUP_TO_FIELD = {"accel_bias": "b_f", "gyro_bias": "b_w", "accel_scale": "s_f",
-                  "accel_misalignment": "m_f", "gyro_scale": "s_w", "gyro_misalignment": "m_w"}
+                  "accel_misalignment": "m_f", "gyro_scale": "s_w", "gyro_misalignment": "m_w",
+                  "gyro_nonorthogonality": "n_w"}
+
+
+def symmetric_offdiagonal(n) -> np.ndarray:
+    """``S(n)`` of the module docstring, ``n = (n_yz, n_xz, n_xy)``."""
+    n_yz, n_xz, n_xy = np.asarray(n, float)
+    return np.array([[0.0, n_xy, n_xz], [n_xy, 0.0, n_yz], [n_xz, n_yz, 0.0]])
+
+
+def nonorthogonality_jacobian(w) -> np.ndarray:
+    """``N(w)`` with ``N(w) n = S(n) w``: the rate error's sensitivity to the non-orthogonality."""
+    wx, wy, wz = np.asarray(w, float)
+    return np.array([[0.0, wz, wy], [wz, 0.0, wx], [wy, wx, 0.0]])
+
+
+def split_misalignment(N) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation ``m`` and the non-orthogonality ``n`` of an off-diagonal matrix ``N``
+    (``N = -[m x] + S(n)``, module docstring); the diagonal of ``N`` is ignored."""
+    N = np.asarray(N, float)
+    m = 0.5 * np.array([N[1, 2] - N[2, 1], N[2, 0] - N[0, 2], N[0, 1] - N[1, 0]])
+    n = 0.5 * np.array([N[1, 2] + N[2, 1], N[0, 2] + N[2, 0], N[0, 1] + N[1, 0]])
+    return m, n
 
 
 def apply_calibration(f_meas, w_meas, cal: ImuCalibration):
@@ -57,9 +92,11 @@ def apply_calibration(f_meas, w_meas, cal: ImuCalibration):
     return (f - b_f) @ A_f.T, (w - b_w) @ A_w.T
 
 
-def corrupt(f_true, w_true, *, b_f=0, b_w=0, s_f=0, m_f=0, s_w=0, m_w=0):
+def corrupt(f_true, w_true, *, b_f=0, b_w=0, s_f=0, m_f=0, s_w=0, m_w=0, n_w=0):
     """Apply the measurement model above (without noise) to true samples; for simulations/tests."""
     f = as_vectors(f_true, "f_true")
     w = as_vectors(w_true, "w_true")
-    b_f, b_w, s_f, m_f, s_w, m_w = (np.broadcast_to(np.asarray(a, float), (3,)) for a in (b_f, b_w, s_f, m_f, s_w, m_w))
-    return (f + b_f + f * s_f + np.cross(f, m_f), w + b_w + w * s_w + np.cross(w, m_w))
+    b_f, b_w, s_f, m_f, s_w, m_w, n_w = (np.broadcast_to(np.asarray(a, float), (3,))
+                                         for a in (b_f, b_w, s_f, m_f, s_w, m_w, n_w))
+    return (f + b_f + f * s_f + np.cross(f, m_f),
+            w + b_w + w * s_w + np.cross(w, m_w) + w @ symmetric_offdiagonal(n_w))

@@ -642,7 +642,7 @@ def estimates_from_fed(layout: StateLayout, fb: np.ndarray, fed: np.ndarray, R_b
     the Gauss-Markov gyro error, zeta, clock offsets) is its accumulated value, a camera misalignment the rotation vector of
     ``R_bc R_bc_nom^T`` (003 eq. (50) composes the corrections as rotations). Navigation and
     considered states are 0."""
-    from nav.filter_state import FB_ADD1, FB_ADD3, FB_GYRO, FB_ROTATE
+    from nav.filter_state import FB_ADD1, FB_ADD3, FB_GYRO, FB_ROTATE, N_CAL
     K = fed.shape[0]
     out = np.zeros((K, layout.n))
     for op, off, col in fb.tolist():
@@ -651,7 +651,7 @@ def estimates_from_fed(layout: StateLayout, fb: np.ndarray, fed: np.ndarray, R_b
         elif op == FB_ADD1:
             out[:, col] = fed[:, off]
         elif op == FB_ROTATE:
-            c = (off - 18) // 9
+            c = (off - N_CAL) // 9
             R = fed[:, off:off + 9].reshape(K, 3, 3)
             out[:, col:col + 3] = matrix_to_rotvec(R @ R_bc_nom[c].T)
     return out

@@ -73,6 +73,11 @@ class Tuning:
         [rad/s/sqrt(Hz)]: table 3 value plus the bracketed extra tuning noise, added in quadrature.
     accel_bias ... camera_misalignment : StateGroupTuning
         Error groups of 003 eq. (46), generalised (scale factor and misalignment of the IMU).
+    gyro_nonorthogonality : StateGroupTuning
+        The gyro triad's non-orthogonality ``n_w`` (:mod:`nav.imu_errors`): the three symmetric
+        off-diagonal terms of its axis misalignment that the rotation ``gyro_misalignment`` does
+        not hold. Off by default (table 3 has the three-state misalignment only); TOML
+        ``[states.gyro_nonorthogonality]`` with ``sigma_mrad``.
     camera_clock_offset : StateGroupTuning
         Time offset of each camera's clock against the IMU time base [s] (003 §7.3), one
         constant state per camera (:mod:`nav.clock_offset` gives the initial value and sigma).
@@ -166,6 +171,7 @@ class Tuning:
     gyro_bias: StateGroupTuning = StateGroupTuning("C", math.radians(6.0) / 3600.0)
     gyro_scale: StateGroupTuning = StateGroupTuning("C", 2000e-6)
     gyro_misalignment: StateGroupTuning = StateGroupTuning("C", 2e-3)
+    gyro_nonorthogonality: StateGroupTuning = StateGroupTuning("off", 2e-3)
     camera_misalignment: StateGroupTuning = StateGroupTuning("E", math.radians(1.0))
     camera_clock_offset: StateGroupTuning = StateGroupTuning("off", 0.05)
     edge_height: StateGroupTuning = StateGroupTuning("off", 20e3)
@@ -247,6 +253,7 @@ _GROUPS = {  # key: (unit key, factor to SI)
     "gyro_bias": ("sigma_deg_h", math.radians(1.0) / 3600.0),
     "gyro_scale": ("sigma_ppm", 1e-6),
     "gyro_misalignment": ("sigma_mrad", 1e-3),
+    "gyro_nonorthogonality": ("sigma_mrad", 1e-3),
     "camera_misalignment": ("sigma_deg", math.radians(1.0)),
     "camera_clock_offset": ("sigma_ms", 1e-3),
     "edge_height": ("sigma_km", 1e3),

@@ -55,6 +55,7 @@ UNITS = (("dx", "m", 1.0), ("dv", "m/s", 1.0), ("psi_c", "deg", math.degrees(1.0
          ("accel_bias", "mg", 1.0 / (1e-3 * G0)), ("gyro_bias", "deg/h", math.degrees(1.0) * 3600.0),
          ("accel_scale", "ppm", 1e6), ("gyro_scale", "ppm", 1e6),
          ("accel_misalignment", "mrad", 1e3), ("gyro_misalignment", "mrad", 1e3),
+         ("gyro_nonorthogonality", "mrad", 1e3),
          ("dt_c", "ms", 1e3), ("zeta", "mrad", 1e3), ("h_e", "m", 1.0))
 
 

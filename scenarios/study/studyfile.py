@@ -325,7 +325,7 @@ def build_variant(study: Study, variant: Variant, base: dict | None = None) -> d
     cfg["run"].check(where)
     t = cfg["tuning"]
     for name in ("accel_bias", "accel_scale", "accel_misalignment", "gyro_bias", "gyro_scale",
-                 "gyro_misalignment", "camera_misalignment"):
+                 "gyro_misalignment", "gyro_nonorthogonality", "camera_misalignment"):
         g = getattr(t, name)
         if g.mode not in ("E", "C", "off"):
             raise UserError(f"{where}: tuning.{name}.mode = {g.mode!r}: expected 'E', 'C' or 'off'")
