@@ -21,7 +21,7 @@ from nav.imu_errors import corrupt
 from nav.navigator import GpsData, ImuData, InitialState, VectorData, run
 from nav.rotation import matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
 from nav.timescales import parse_utc
-from nav.tuning import Tuning
+from nav.tuning import StateGroupTuning, Tuning
 
 NS = 1_000_000_000
 ASCENT_ATT_BOUND, ASCENT_POS_BOUND = 1e-4, 2.0  # measured 8.6e-6 rad, 0.2 m (2026-11)
@@ -360,18 +360,20 @@ def test_ins_through_spinning_ascent(atek_nav_grade_ideal):
 
 VEC_GM_DEG, VEC_WHITE_DEG = 0.05, 0.02   # stand-in vision error: GM (T_c = 20 s) + white, per vector
 GYRO_WHITE_MATCHED = 0.5  # deg/sqrt(h), see matched_tuning
+GYRO_MISALIGNMENT_SPLIT_MRAD = 1.4142  # 2 mrad / sqrt(2), see matched_tuning
 
 
 def matched_tuning(base: Tuning | None = None) -> Tuning:
-    """Table 3 with the white noises of the simulated sensors instead of 003's flight tuning:
-    accelerometer 0.05 mg/sqrt(Hz); gyro 0.05 deg/sqrt(h) plus the 0.03 deg/s quantisation of the
-    atek gyro at 20 Hz (0.03/sqrt(12) deg/s * sqrt(0.05 s) = 0.116 deg/sqrt(h)) and margin for the
-    simulator's 6-parameter axis misalignment (the filter models the 3 of table 3; the other 3 act
-    like a rate-dependent bias of up to 0.9 deg/s * 2 mrad = 6 deg/h): 0.5 deg/sqrt(h) in all
-    (0.3 left the 50-run attitude NEES at 4.1, above its band); vector white noise as simulated."""
+    """Table 3 with the error models of the simulated sensors instead of 003's flight tuning:
+    accelerometer 0.05 mg/sqrt(Hz); gyro 0.05 deg/sqrt(h) plus the white equivalent of the atek
+    gyro's 0.03 deg/s quantisation on the coast's slowly turning axes (0.43-0.65 deg/sqrt(h),
+    scenarios/library/tuning/atek-sim.toml derives it): 0.5 deg/sqrt(h) in all; the simulator's six
+    2 mrad axis-misalignment terms as their rotation and their non-orthogonality, 2 / sqrt(2) mrad
+    each (nav/imu_errors.py), both considered; vector white noise as simulated."""
     t = base or Tuning()
+    mis = StateGroupTuning("C", GYRO_MISALIGNMENT_SPLIT_MRAD * 1e-3)
     return t.with_(accel_white=0.05e-3 * 9.80665, gyro_white=math.radians(GYRO_WHITE_MATCHED) / 60.0,
-                   vector_white=math.radians(VEC_WHITE_DEG))
+                   vector_white=math.radians(VEC_WHITE_DEG), gyro_misalignment=mis, gyro_nonorthogonality=mis)
 
 
 @dataclass
@@ -483,7 +485,6 @@ def test_consistency_monte_carlo_50_runs():
     accurate (the printout gives the difference)."""
     st = consistency_study(50)
     _check_consistency(st, 50, 0.99)
-    from nav.tuning import StateGroupTuning
     tun = matched_tuning()
     st_c = consistency_study(50, tuning=tun.with_(camera_misalignment=StateGroupTuning("C", tun.camera_misalignment.sigma)))
     print(f"attitude RMS {st.att_rms_deg:.3f} deg (psi_c estimated) vs {st_c.att_rms_deg:.3f} deg (considered); "
@@ -601,7 +602,6 @@ def atek_accuracy(mis_deg=1.0, seed=21, t_end=430.0, smoother=False):
     import copy
     from nav.initialise import triad_initialise
     from nav.smoother import rts_smooth
-    from nav.tuning import StateGroupTuning
     from scenarios.sim import simulate as S
     from scenarios.sim.scenario import load_scenario
     sc = copy.deepcopy(load_scenario("atek"))

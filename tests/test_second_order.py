@@ -136,8 +136,9 @@ def test_misalignment_reset_composes_the_misalignment_correction():
 def test_second_order_key_and_the_simulated_sensors_tuning_file():
     """``[filter] misalignment_reset`` and ``second_order_noise`` take booleans (anything else
     names the key); the shipped tuning of the simulated ATEK sensors is table 3 with the
-    simulator's white noises, the gyro bias estimated and the misalignment reset on
-    (tests/test_navigator.py matched_tuning holds the same noise values, derived there)."""
+    simulator's white noises and its gyro misalignment split into rotation and non-orthogonality,
+    the gyro bias estimated and the misalignment reset on (tests/test_navigator.py matched_tuning
+    holds the same values; atek-sim.toml derives them)."""
     import pytest
     from nav.tuning import tuning_from_toml
     from scenarios.config.tuning import DEFAULT_TUNING_FILE, load_tuning
@@ -153,6 +154,8 @@ def test_second_order_key_and_the_simulated_sensors_tuning_file():
     assert t.accel_white == pytest.approx(m.accel_white, rel=1e-12)
     assert t.gyro_white == pytest.approx(m.gyro_white, rel=1e-4)
     assert t.vector_white == pytest.approx(m.vector_white, rel=1e-3)
+    assert t.gyro_misalignment == m.gyro_misalignment == t.gyro_nonorthogonality == m.gyro_nonorthogonality
+    assert t.gyro_misalignment.mode == "C" and t.gyro_misalignment.sigma == pytest.approx(2e-3 / 2 ** 0.5, rel=1e-4)
     assert t.with_(misalignment_reset=False, gyro_bias=m.gyro_bias, accel_white=m.accel_white, gyro_white=m.gyro_white,
                    vector_white=m.vector_white) == m
 
