@@ -95,6 +95,33 @@ def test_quantisation_and_saturation():
     assert np.all(np.degrees(apply_errors(big, cfg, None, None).gyro) <= 1000.0 + 1e-9)
 
 
+def test_rate_quantum_grid_phase_is_drawn_per_run():
+    """With a generator, the rate quantum grid's phase u ~ U(0, q) is drawn per run and axis: within
+    a run the outputs lie on one grid u + k q (differences are whole quanta) within q/2 of the input;
+    over runs the error of the same input is uniform on [-q/2, q/2): mean 0, sd q / sqrt(12) (the
+    aligned grid of rng None gives every run the same error)."""
+    cfg = copy.deepcopy(load_scenario("atek").imu)
+    cfg.gyro_noise_deg_rt_h = 0.0
+    cfg.accel_noise_mg_rt_hz = 0.0
+    cfg.accel_resolution_mg = 0.5
+    q = np.radians(cfg.gyro_resolution_dps)
+    x = ImuSamples(np.arange(200) * 0.05, np.linspace(-0.01, 0.01, 200)[:, None] * [1.0, 0.7, -0.3],
+                   np.full((200, 3), 0.0123), "rate", 0.05)
+    runs = 4000
+    e = np.empty((runs, 3))
+    for r in range(runs):
+        y = apply_errors(x, cfg, None, np.random.default_rng(r))
+        k = (y.gyro - y.gyro[:1]) / q
+        assert np.allclose(k, np.round(k), atol=1e-9) and np.all(np.abs(y.gyro - x.gyro) <= q / 2 + 1e-15)
+        assert np.all(np.abs(y.accel - x.accel) <= 0.5 * MG / 2 + 1e-15)
+        e[r] = y.gyro[100] - x.gyro[100]
+    for j in range(3):
+        assert abs(e[:, j].mean()) < 5 * q / np.sqrt(12 * runs), e[:, j].mean() / q
+        assert _sd_ok(e[:, j].std(ddof=1), q / np.sqrt(12), runs)
+    k0 = apply_errors(x, cfg, None, None).gyro / q
+    assert np.allclose(k0, np.round(k0), atol=1e-9)  # rng None: the grid is aligned with zero
+
+
 def test_atek_gyros_saturate_in_spin_and_nav_grade_does_not(short_flight):
     sc, tr = short_flight
     meas, _ = simulate_imu(tr, sc.imu, rng_for(1, 1))

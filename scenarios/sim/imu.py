@@ -24,9 +24,20 @@ random walk) gives a per-sample standard deviation ``N / sqrt(dt)`` for rate out
 the mean of white noise over dt) and ``N sqrt(dt)`` for increments. Units: gyro N in deg/sqrt(h)
 = (deg/s)/sqrt(Hz) / 60; accelerometer N in mg/sqrt(Hz).
 
-Then saturation (clip at +-range; increments at +-range * dt) and quantisation: rates are rounded to
-the resolution; increments are quantised with the residual carried to the next sample (the sum of the
-outputs stays within one quantum of the sum of the inputs, as in a pulse-counting sensor).
+Then saturation (clip at +-range; increments at +-range * dt) and quantisation. Rates are rounded to
+a grid of the resolution ``q`` whose phase ``u`` relative to the true zero rate is drawn per run and
+per axis, ``u ~ U(0, q)`` (after the noise, from the same generator)::
+
+    y_q = round((y - u) / q) q + u.
+
+The converter counts ``round((y + o) / q)`` with a zero offset ``o`` of many quanta, which the
+calibration removes (``y_q = counts q - o``); the fractional part of ``o / q`` is arbitrary, hence
+``u = -o mod q`` uniform. For any input the error ``y_q - y`` is then uniform on [-q/2, q/2) over runs,
+with mean zero, while within a run it keeps the time correlation of the rounding of a slowly varying
+rate (a run's error is a deterministic function of ``y - u``). With ``rng`` None (no noise) the grid
+is aligned with zero (``u = 0``). Increments are quantised with the residual carried to the next
+sample (the sum of the outputs stays within one quantum of the sum of the inputs, as in a
+pulse-counting sensor).
 """
 from __future__ import annotations
 
@@ -139,9 +150,15 @@ def _quantise_carry(x: np.ndarray, q: float) -> np.ndarray:
     return np.diff(np.concatenate([np.zeros((1, x.shape[1])), c]), axis=0)
 
 
+def _quantise_rate(x: np.ndarray, q: float, u: np.ndarray | float) -> np.ndarray:
+    """Round rates to the grid ``u + k q`` (``u`` per axis, broadcast over samples)."""
+    return np.round((x - u) / q) * q + u
+
+
 def apply_errors(ideal: ImuSamples, cfg: ImuConfig, errors: ImuErrors | None,
                  rng: np.random.Generator | None) -> ImuSamples:
-    """Measured samples: errors (None: none), noise (rng None: none), saturation, quantisation."""
+    """Measured samples: errors (None: none), noise and quantum-grid phase (rng None: none, grid at
+    zero), saturation, quantisation."""
     dt = ideal.dt
     inc = ideal.output == "increment"
     g, a = ideal.gyro, ideal.accel
@@ -160,10 +177,12 @@ def apply_errors(ideal: ImuSamples, cfg: ImuConfig, errors: ImuErrors | None,
     a = np.clip(a, -cfg.accel_range_g * G0 * k, cfg.accel_range_g * G0 * k)
     qg = np.radians(cfg.gyro_resolution_dps) * k
     qa = cfg.accel_resolution_mg * MG * k
+    ug = rng.uniform(0.0, qg, 3) if rng is not None and qg > 0 and not inc else 0.0
+    ua = rng.uniform(0.0, qa, 3) if rng is not None and qa > 0 and not inc else 0.0
     if qg > 0:
-        g = _quantise_carry(g, qg) if inc else np.round(g / qg) * qg
+        g = _quantise_carry(g, qg) if inc else _quantise_rate(g, qg, ug)
     if qa > 0:
-        a = _quantise_carry(a, qa) if inc else np.round(a / qa) * qa
+        a = _quantise_carry(a, qa) if inc else _quantise_rate(a, qa, ua)
     return ImuSamples(ideal.t, g, a, ideal.output, dt)
 
 
