@@ -222,8 +222,11 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
     t0 = time.perf_counter()
     pa_med = median(pa)
     if limb is not None and tc.limb.fraction > 0:
-        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
+        info: dict = {}
+        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl],
+                        info=info)
         timings["earth.limb"] = time.perf_counter() - t0
+        out.limb_width_ratio = info.get("width_ratio", math.nan)
         if lr is not None:
             model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,

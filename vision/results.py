@@ -108,6 +108,8 @@ class TargetResult:
     limb_sigma_m: float = math.nan  # Earth, limb edge: the limb model's own height term [m] (vision.limb)
     limb_rejected_m: float = math.nan  # Earth: the limb edge's own height [m] when it disagreed with
     # the limb model (EdgeHeightOptions.limb_gate) and the threshold edge was used instead
+    limb_width_ratio: float = math.nan  # Earth: median flank width of the usable limb profiles over
+    # eq. (4)'s (vision.limb_refit); above LimbOptions.edge_width_max the limb edge is not used
     second_arc: object = None  # Earth: the wrong-edge test's second arc (vision.edge_check.SecondArc) where
     # the fitted arc lies in the shadow, else None
     cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the
