@@ -223,3 +223,33 @@ def test_twilight_limb_keeps_the_limb_edge():
     assert _hits_ground(cam, tr, r) == 0.0
     err = _err_deg(rec, e_true)
     assert err < 0.3 and err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
+
+
+def test_ground_edge_under_a_shadowed_limb_gives_way_to_the_limb():
+    """Camera 0 at T+111, standard profile at 60 km: the Sun is below the horizon at the tangent
+    points, the Earth's shadow darkens the lower atmosphere, and the sunlit limb above it is a
+    bright arc of its own above a dark band. Two candidates are accepted; by residual the ground's
+    edge wins (every one of its pixels' rays hits the ellipsoid, truth pose), 1.8 deg off against
+    1.4 deg of 3 sigma. Its limb profiles are the ground's (median flank > 1.3 x eq. (4); measured
+    3.1), so the accepted candidate beyond it is used (`vision.frontend._outer_candidate`): its
+    pixels' true tangent heights are above 40 km (the limb) and the nadir is within 0.2 deg and 3
+    sigma. With ``limb.edge_width_max`` = 0 the ground edge is kept (the miss)."""
+    import numpy as np
+
+    from scenarios.sim.render import ray_ellipsoid
+    from vision.camera import unproject
+
+    cam, rows = _twilight_frames(em.Case(60e3), (111.0,))
+    t_s, (res, res_off), e_true, r = rows[0]
+    for rr, outer in ((res, True), (res_off, False)):
+        tr, rec = rr.targets["earth"], rr.record("earth")
+        rays_e = unproject(cam, tr.detection.candidates[tr.winner].points) @ np.asarray(r.R_ec).T
+        hit, _, h_t = ray_ellipsoid(np.asarray(r.x_e, float), rays_e)
+        err = _err_deg(rec, e_true)
+        if outer:
+            assert tr.inner_candidate is not None and tr.inner_width_ratio > 1.3, tr.inner_width_ratio
+            assert not hit.any() and np.median(h_t) > 40e3, np.median(h_t)
+            assert err < 0.2 and err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
+        else:
+            assert tr.inner_candidate is None and hit.mean() > 0.99
+            assert err > 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
