@@ -101,18 +101,8 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=Non
     slope = phase_slope(rays_c, e_c, pa, R_t.T @ sun_e, tc.limb.aerosol_weight, tc.limb.aerosol_g)
     uvn, rn, ok, Jn, rise = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True, phase_slope=slope,
                                              rise_level=_RISE_LEVEL)
-    ratio = None
-    if ok.any() and tc.limb.flank_width_max > 0:
-        keep, ratio = _flank_widths(rn[ok], rise[ok] * pa[ok], model_l, R_t, x_e, sun_e, tc, lc.min_drop)
-        ok[ok] = keep
-        ratio = ratio[keep]
-    el = None
-    twilight = False
-    if ok.any():
-        keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
-        ok[ok] = keep
-        dh_sun = dh
-        ratio = ratio[keep] if ratio is not None else None
+    el, twilight, dh, ratio = _usable(ok, rn, rise * pa, model_l, R_t, e_c, x_e, sun_e, tc, lc)
+    dh_sun = dh
     if _not_a_limb(ratio, tc, info):
         return None
     n_ok = int(ok.sum())
@@ -169,6 +159,23 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=Non
 #: the upper level of the flank width test (`_flank_width_ok`): a fraction of the peak above the
 #: crossing's, below the flat top (which noise and JPEG steps make a poor marker)
 _RISE_LEVEL = 0.8
+
+
+def _usable(ok, rn, rise_rad, model_l: LimbModel, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdgeConfig):
+    """The limb profiles that are usable (``ok`` (m,) updated in place): by their flank width
+    (`_flank_widths`) and the Sun's elevation at their tangent points (`_sun_path_shifts`).
+    Returns (el, twilight, dh, ratio) of the usable ones (None, False, None, None when there are
+    none; ratio None without the width test)."""
+    ratio = None
+    if ok.any() and tc.limb.flank_width_max > 0:
+        keep, ratio = _flank_widths(rn[ok], rise_rad[ok], model_l, R_t, x_e, sun_e, tc, lc.min_drop)
+        ok[ok] = keep
+        ratio = ratio[keep]
+    if not ok.any():
+        return None, False, None, ratio
+    keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
+    ok[ok] = keep
+    return el, twilight, dh, (ratio[keep] if ratio is not None else None)
 
 
 def _flank_widths(rays_c, rise_rad, model_l: LimbModel, R_t, x_e, sun_e, tc: TargetConfig, min_drop: float):
