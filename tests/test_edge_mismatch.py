@@ -5,8 +5,6 @@ pixels the fit used. The fast test runs three frames at the default edge height 
 full study (48 frames, five heights, two limb profiles) is `-m slow`.
 """
 import math
-import tempfile
-from pathlib import Path
 
 import pytest
 
@@ -170,7 +168,7 @@ def _twilight_frames(case, times_s):
     off = dataclasses.replace(cfg, earth=dataclasses.replace(
         cfg.earth, limb=dataclasses.replace(cfg.earth.limb, edge_width_max=0.0)))
     mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
-    cache = Path(tempfile.gettempdir()) / "horizon-nav-edge-mismatch"
+    cache = em.default_cache()
     cache.mkdir(parents=True, exist_ok=True)
     out = []
     for t_s, k, r in frames:

@@ -28,8 +28,12 @@ import numpy as np
 
 from scenarios.atomic import atomic_write_text
 
-__all__ = ["NOMINAL_EDGE_M", "HEIGHTS_M", "PROFILES", "Case", "FrameOutcome", "atek_frames", "run_case",
+__all__ = ["CACHE_VERSION", "default_cache", "NOMINAL_EDGE_M", "HEIGHTS_M", "PROFILES", "Case", "FrameOutcome", "atek_frames", "run_case",
            "summarise", "run_study", "main"]
+
+#: version of the rendered-frame cache (`default_cache`): raised when the renderer's output changes
+#: (2: the twilight Sun path with the erf air mass, the payload drawn by the [render] table)
+CACHE_VERSION = 2
 
 #: effective height [m] of the default threshold edge on the default renderer (docs/vision.md)
 NOMINAL_EDGE_M = 45e3
@@ -189,12 +193,17 @@ def summarise(case: Case, outcomes: list[FrameOutcome]) -> dict:
                 from_arc=float(np.mean([o.from_arc for o in ok])) if ok else math.nan, paths=paths)
 
 
+def default_cache() -> Path:
+    """The rendered frames' cache directory: the temporary directory's
+    horizon-nav-edge-mismatch-<`CACHE_VERSION`>."""
+    return Path(tempfile.gettempdir()) / f"horizon-nav-edge-mismatch-{CACHE_VERSION}"
+
+
 def run_study(n_frames: int = 48, heights=HEIGHTS_M, profiles=tuple(PROFILES), config=None,
               cache: Path | None = None, span_s: tuple = (64.0, 430.0)) -> list[dict]:
     """`summarise` of every (profile, height) case on ``n_frames`` ATEK frames spread over
     ``span_s`` = (t0, t1) [s after liftoff] (`atek_frames`) with the front end's defaults (or
-    ``config``). Rendered frames are cached under ``cache`` (default: the temporary directory's
-    horizon-nav-edge-mismatch)."""
+    ``config``). Rendered frames are cached under ``cache`` (default: `default_cache`)."""
     from scenarios.sim import render
     from vision import mask as vmask
     from vision.config import default_config
@@ -203,7 +212,7 @@ def run_study(n_frames: int = 48, heights=HEIGHTS_M, profiles=tuple(PROFILES), c
     cam = fl.cameras[0].camera
     config = default_config(cam.fx) if config is None else config
     mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
-    cache = Path(tempfile.gettempdir()) / "horizon-nav-edge-mismatch" if cache is None else cache
+    cache = default_cache() if cache is None else cache
     cache.mkdir(parents=True, exist_ok=True)
     rows = []
     for p in profiles:
