@@ -298,7 +298,9 @@ class LimbOptions(_Checks):
         that wide (a scale height above 10.4 km at 1.3; the Earth's shadow and thinner air make it
         narrower), the profiles follow a brightness gradient on the twilight ground and their
         crossings lie on the disc. Measured frame medians: 0.72-1.14 on rendered limbs (standard
-        and 6 km scale-height profiles, twilight included), 1.48-3.2 on ground gradients. 0: no test.
+        and 6 km scale-height profiles, Sun -1.3 to +22 deg), at most 1.09 on the vision bench;
+        1.48-2.47 where the limb edge on the ground missed its 3 sigma, 3.1-5.1 on ground edges
+        under a limb separated by the Earth's shadow (`vision.frontend._outer_candidate`). 0: no test.
     flank : `FlankOptions`; calibrate : `CalibrationOptions` (clipped limb maxima).
     """
 
