@@ -27,7 +27,9 @@ Pipeline per target (`process_frame`; options: `vision.config`)
    pixels a few pixels on the body side of the edge must be bright and those on the space side
    dark (`vision.probes.side_score`); a fit that fails it is retried from its mirror image
    (`vision.nadir.mirrored_direction`, refined locally).
-4. The accepted candidate with the smallest residual wins (003 §3.4). Only the winner is
+4. The accepted candidate with the smallest residual wins (003 §3.4); for the Earth, when the
+   winner's limb profiles are the ground's, an accepted candidate beyond its edge is processed
+   instead (`_outer_candidate`: the air lies above the ground). Only the winner is
    processed fully: at most ``fit.rays`` of its pixels are unprojected with the Jacobian
    (`vision.camera.unproject_jacobian`), inliers re-selected, refitted, and the O(m) covariance of
    003 eq. (33) with the correlated pixel noise (R, L) of eqs. (34)-(36), (38) is computed
