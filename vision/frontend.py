@@ -216,12 +216,13 @@ def _limb_consistent(ef, sigma_l: float, tc: TargetConfig) -> bool:
 def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb, w, L_eff: float, timings):
     """Earth after the refit ``w`` (`_refit_winner`): the limb edge (`limb_refit`) when the prior
     allows it and its arc agrees with the limb model (`_limb_consistent`), else the threshold
-    edge; each with its edge height fitted and the covariance (`_earth_covariance`). Returns
+    edge (the threshold edge alone where the filter's state describes it, `_threshold_state`);
+    each with its edge height fitted and the covariance (`_earth_covariance`). Returns
     (e_c, P_c, alpha, (height, sigma), uv, inliers, fit) and fills ``out``'s limb and edge fields."""
     uv, rays_c, J, pa, H, fit, inl, step = w
     t0 = time.perf_counter()
     pa_med = median(pa)
-    if limb is not None and tc.limb.fraction > 0:
+    if limb is not None and tc.limb.fraction > 0 and not _threshold_state(tc):
         lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
         timings["earth.limb"] = time.perf_counter() - t0
         if lr is not None:
@@ -250,7 +251,13 @@ def _threshold_covariance(model, fit, w, tc: TargetConfig, L_eff: float, pa_med:
     _, rays_c, J, _, H, _, inl, _ = w
     return _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
                              tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m,
-                             tc.edge.filter_state and not tc.limb.fraction > 0)
+                             tc.edge.filter_state and (_threshold_state(tc) or not tc.limb.fraction > 0))
+
+
+def _threshold_state(tc: TargetConfig) -> bool:
+    """The filter's edge-height state describes the threshold edge on every frame
+    (``edge.state_edge`` "threshold" with ``edge.filter_state``): the limb model is not used."""
+    return tc.edge.filter_state and tc.edge.state_edge == "threshold"
 
 
 def _limb_checked(ef, sigma_p: float, tc: TargetConfig) -> bool:
@@ -380,17 +387,24 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
                               int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, alpha,
                               model.kind if model is not None else "", float(edge[0]), float(edge[1]),
                               out.edge_dedge_c if model is not None else None,
-                              *_edge_data(out, model))
+                              *_edge_data(out, model, tc))
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out
 
 
-def _edge_data(out: TargetResult, model) -> tuple:
+def _edge_data(out: TargetResult, model, tc: TargetConfig) -> tuple:
     """(edge_data_m, edge_data_sigma_m) of the record: the arc's own edge height and its sigma
-    where the filter estimates the height (``dedge_c`` set), else NaN."""
+    where the filter estimates the height (``dedge_c`` set), else NaN; (NaN, inf) where the state
+    describes the threshold edge (`_threshold_state`): there the arc's own height is no
+    measurement of it. Its error is the bend of the edge's height variation along the limb
+    (the Sun's elevation and the scattering angle change along it), which a camera that keeps
+    its arc in one place sees alike in every frame: a common error that independent per-frame
+    measurements would add up (docs/vision.md)."""
     if model is None or out.edge_dedge_c is None:
         return math.nan, math.nan
+    if _threshold_state(tc):
+        return math.nan, math.inf
     return float(out.edge_data_m), float(out.edge_data_sigma_m)
 
 
