@@ -3,6 +3,7 @@ vision on its images, the filter (the edge height a state, the Moon a target) an
 (scenarios/study/orbit_mismatch.py); the figures are checked against the simulator's truth."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,8 +25,10 @@ def orbit_log(tmp_path_factory):
     sc = d / "orbit-short.toml"
     sc.write_text(text.replace("duration_s = 240.0", "duration_s = 120.0").replace("rate_hz = 0.5\n", "rate_hz = 0.25\n"))
     log = d / "o.mcap"
-    subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", str(sc), "-o", str(log), "--quiet"],
-                   check=True, cwd=ROOT, capture_output=True)
+    out = subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", str(sc), "-o", str(log), "--quiet"],
+                         check=True, cwd=ROOT, capture_output=True, text=True).stdout
+    lo, hi = map(float, re.search(r"; height ([\d.]+)-([\d.]+) km;", out).groups())
+    assert 450 < lo < hi < 550 and "apogee" not in out, out   # an orbit has no apogee to report
     return log
 
 

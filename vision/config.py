@@ -291,7 +291,16 @@ class LimbOptions(_Checks):
         its crossing lies kilometres low. Tested where the Sun at the tangent point is above
         `vision.limb.resolved_sun_sine` (12.4 deg with the defaults: the limb's own drop above
         the surface is then less than the detector's 15 %). Measured ratios: 0.8-1.15 on rendered
-        limbs (5-95 %), 1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test.
+        limbs (5-95 %), 1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test
+        (neither this nor ``edge_width_max``).
+    edge_width_max : the limb edge is not used (the threshold edge is) when the median of that
+        ratio over its usable profiles, at any Sun elevation, exceeds this: no limb has a flank
+        that wide (a scale height above 10.4 km at 1.3; the Earth's shadow and thinner air make it
+        narrower), the profiles follow a brightness gradient on the twilight ground and their
+        crossings lie on the disc. Measured frame medians: 0.72-1.14 on rendered limbs (standard
+        and 6 km scale-height profiles, Sun -1.3 to +22 deg), at most 1.09 on the vision bench;
+        1.48-2.47 where the limb edge on the ground missed its 3 sigma, 3.1-5.1 on ground edges
+        under a limb separated by the Earth's shadow (`vision.frontend._outer_candidate`). 0: no test.
     flank : `FlankOptions`; calibrate : `CalibrationOptions` (clipped limb maxima).
     """
 
@@ -312,6 +321,7 @@ class LimbOptions(_Checks):
     aerosol_weight: float = 0.25
     aerosol_g: float = 0.75
     flank_width_max: float = 1.3
+    edge_width_max: float = 1.3
     flank: FlankOptions = FlankOptions()
     calibrate: CalibrationOptions = CalibrationOptions()
 
@@ -342,6 +352,8 @@ class LimbOptions(_Checks):
             self._bad("aerosol_g", "an asymmetry parameter in [0, 1)")
         if not (self.flank_width_max == 0.0 or 1.0 <= self.flank_width_max <= 10.0):
             self._bad("flank_width_max", "0 (no test) or a ratio in [1, 10]")
+        if not (self.edge_width_max == 0.0 or 1.0 <= self.edge_width_max <= 10.0):
+            self._bad("edge_width_max", "0 (no test) or a ratio in [1, 10]")
 
 
 @dataclass(frozen=True)
