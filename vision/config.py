@@ -479,6 +479,15 @@ class EdgeHeightOptions(_Checks):
         ``VectorRecord.dedge_c`` the sensitivity ``d e_c / d h_e`` [1/m] at ``edge_height_m``,
         and the arc's own height ``edge_data_m`` with its sigma
         (`vision.edge_height.conditional_on_height`); records of the other edge are as without it.
+    state_edge : the edge the filter's state describes with ``filter_state``: "limb" (the limb edge
+        where the limb model is on, its "limb" and "flank" paths; else the threshold edge) or
+        "threshold" (the threshold edge on every frame, the limb model not used for the Earth's
+        vector): for a camera whose arc cannot check the limb model's height (a narrow field of
+        view, see ``cross_check_ratio``), where the limb model's per-pixel heights err from frame
+        to frame and along the arc in ways no edge height describes, and the threshold edge is one
+        brightness level whose height the flight learns; its records give no arc's own height
+        (its error repeats from frame to frame on such a camera, docs/vision.md). Without
+        ``filter_state`` it has no effect.
     offset_gate : the flight's limb edge height offset (`vision.limb_offset`: one per camera, the
         weighted mean over its limb-edge frames of the arc's own height minus the prior's mean)
         tightens the limb edge's prior to N(mean, offset sigma^2 + limb term^2) when
@@ -513,6 +522,7 @@ class EdgeHeightOptions(_Checks):
     limb_gate: float = 3.0
     cross_check_ratio: float = 3.0
     filter_state: bool = False
+    state_edge: str = "limb"
     offset_gate: float = 3.0
     offset_min_frames: int = 5
     offset_resolution_m: float = 3000.0
@@ -529,6 +539,8 @@ class EdgeHeightOptions(_Checks):
             self._bad("estimate", "true or false")
         if not isinstance(self.filter_state, bool):
             self._bad("filter_state", "true or false")
+        if self.state_edge not in ("limb", "threshold"):
+            self._bad("state_edge", '"limb" or "threshold"')
         self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate", "cross_check_ratio"))
         if not (math.isnan(self.start_m) or 0.0 <= self.start_m < 200e3):
             self._bad("start_m", "NaN (atmosphere_m) or 0 <= h < 200 km")

@@ -218,7 +218,8 @@ def _limb_consistent(ef, sigma_l: float, tc: TargetConfig) -> bool:
 def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb, w, L_eff: float, timings):
     """Earth after the refit ``w`` (`_refit_winner`): the limb edge (`limb_refit`) when the prior
     allows it and its arc agrees with the limb model (`_limb_consistent`), else the threshold
-    edge; each with its edge height fitted and the covariance (`_earth_covariance`). Returns
+    edge (the threshold edge alone where the filter's state describes it, `_threshold_state`);
+    each with its edge height fitted and the covariance (`_earth_covariance`). Returns
     (e_c, P_c, alpha, (height, sigma), uv, inliers, fit) and fills ``out``'s limb and edge fields."""
     uv, rays_c, J, pa, H, fit, inl, step = w
     t0 = time.perf_counter()
@@ -229,7 +230,7 @@ def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb
                         info=info)
         timings["earth.limb"] = time.perf_counter() - t0
         out.limb_width_ratio = info.get("width_ratio", math.nan)
-        if lr is not None:
+        if lr is not None and not _threshold_state(tc):
             model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
@@ -255,7 +256,14 @@ def _threshold_covariance(model, fit, w, tc: TargetConfig, L_eff: float, pa_med:
     _, rays_c, J, _, H, _, inl, _ = w
     return _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
                              tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m,
-                             tc.edge.filter_state and not tc.limb.fraction > 0)
+                             tc.edge.filter_state and (_threshold_state(tc) or not tc.limb.fraction > 0))
+
+
+def _threshold_state(tc: TargetConfig) -> bool:
+    """The filter's edge-height state describes the threshold edge on every frame
+    (``edge.state_edge`` "threshold" with ``edge.filter_state``): the limb edge is not used for
+    the vector (its profiles still judge whether the winner's edge is a limb, `_outer_candidate`)."""
+    return tc.edge.filter_state and tc.edge.state_edge == "threshold"
 
 
 def _limb_checked(ef, sigma_p: float, tc: TargetConfig) -> bool:
@@ -402,7 +410,7 @@ def _winner_record(out: TargetResult, win, image, camera, tc: TargetConfig, mode
                               int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, alpha,
                               model.kind if model is not None else "", float(edge[0]), float(edge[1]),
                               out.edge_dedge_c if model is not None else None,
-                              *_edge_data(out, model))
+                              *_edge_data(out, model, tc))
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out
@@ -444,11 +452,18 @@ def _outer_candidate(res: TargetResult, good: list, win, camera, tc: TargetConfi
 _OUTER_RAYS = 64
 
 
-def _edge_data(out: TargetResult, model) -> tuple:
+def _edge_data(out: TargetResult, model, tc: TargetConfig) -> tuple:
     """(edge_data_m, edge_data_sigma_m) of the record: the arc's own edge height and its sigma
-    where the filter estimates the height (``dedge_c`` set), else NaN."""
+    where the filter estimates the height (``dedge_c`` set), else NaN; (NaN, inf) where the state
+    describes the threshold edge (`_threshold_state`): there the arc's own height is no
+    measurement of it. Its error is the bend of the edge's height variation along the limb
+    (the Sun's elevation and the scattering angle change along it), which a camera that keeps
+    its arc in one place sees alike in every frame: a common error that independent per-frame
+    measurements would add up (docs/vision.md)."""
     if model is None or out.edge_dedge_c is None:
         return math.nan, math.nan
+    if _threshold_state(tc):
+        return math.nan, math.inf
     return float(out.edge_data_m), float(out.edge_data_sigma_m)
 
 

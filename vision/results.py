@@ -36,7 +36,8 @@ class VectorRecord:
         height ``edge_height_m`` and its covariance (`vision.edge_height.conditional_on_height`).
     edge_data_m, edge_data_sigma_m : Earth with ``EdgeHeightOptions.filter_state``: the arc's own
         (prior-free) edge height [m] and its 1-sigma [m] (inf where the arc cannot separate the
-        height from the tilt), the filter's measurement of the height; NaN otherwise.
+        height from the tilt, or where the state describes the threshold edge:
+        ``EdgeHeightOptions.state_edge``), the filter's measurement of the height; NaN otherwise.
     """
 
     t_ns: int
