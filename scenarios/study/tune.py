@@ -26,7 +26,8 @@ tuning written keeps the modes of the base tuning.
 The optimiser
 -------------
 Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping,
-in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
+in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior, :data:`GM_TIME_BOUND` for
+the Gauss-Markov correlation time) and a
 trust region of a factor 4 per step. One iteration costs 2p + 1 filter runs: at theta and at
 theta +- h e_i (central differences, h = :data:`STEP`). Those runs give the gradient of the
 objective and the derivatives of every innovation and its covariance, hence the Fisher
@@ -76,6 +77,7 @@ import numpy as np
 from nav.error_state import TRANSITION_GROUPS
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
 from nav.navigator import GpsData, VectorData, run
+from nav.schmidt import GATED, REASONS
 from nav.tuning import G0, Tuning
 
 log = logging.getLogger(__name__)
@@ -92,12 +94,16 @@ SE_LOG_IDENTIFIED = math.log(1.0 + REL_ACCURACY) / Z_IDENTIFIED
 #: parameter kept at its prior): the flight does not pin it to a factor 2 at 1 sigma
 SE_LOG_FLAT = math.log(2.0)
 BOUND_FACTOR = 30.0    #: the estimate stays within this factor of the prior
+#: the factor for the Gauss-Markov correlation time above its prior: up to the random walk's limit
+#: (T_c = 20 s x 1000 is hours, longer than a flight; docs/tuning.md "The filter the estimate is for")
+GM_TIME_BOUND = 1000.0
 MAX_STEP_LOG = math.log(4.0)   #: largest change of a log-parameter in one iteration
 RIDGE = 1.0            #: added to the information in the step (not in the standard errors)
 #: rise of -log L at the prior beyond which a weak parameter keeps its estimate (chi-square 1 dof
 #: at 0.999: 10.8 / 2)
 LR_GAP = 5.4
 VECTOR_KINDS = ("hor", "sun", "moon")
+GATE_REASON = REASONS[GATED]   #: an innovation's reason when the chi-square gate rejected it
 AIDING = {"gps_pos", "gps_vel", "hor", "sun", "moon"}
 RAD_S_TO_DEG_RTH = math.degrees(1.0) * 60.0   #: rad/sqrt(s) -> deg/sqrt(h)
 
@@ -114,6 +120,7 @@ class Param:
     toml: tuple
     applies: Callable = lambda t: None   #: a reason the tuning does not use it, or None
     to_unit: float = 1.0                 #: SI -> the unit shown
+    bound: float = BOUND_FACTOR          #: the search stays within this factor of the prior
 
     def entries(self, value: float) -> list:
         """``[(table, key, value)]`` of the TOML for the SI value."""
@@ -155,7 +162,7 @@ def _params() -> dict:
                                             (("vectors", f"cov_scale_{tg}", 1.0),))
     p["correlation_time"] = Param("correlation_time", "s", lambda t: t.correlation_time_s,
                                   lambda t, v: replace(t, correlation_time_s=v), frozenset(VECTOR_KINDS),
-                                  (("vectors", "correlation_time_s", 1.0),), _gm_used)
+                                  (("vectors", "correlation_time_s", 1.0),), _gm_used, bound=GM_TIME_BOUND)
     p["gyro_white"] = Param("gyro_white", "deg/sqrt(h)", lambda t: t.gyro_white, lambda t, v: replace(t, gyro_white=v),
                             frozenset(AIDING), (("imu", "gyro_white_noise_deg_rth", RAD_S_TO_DEG_RTH),
                                                 ("imu", "gyro_white_noise_extra_deg_rth", None)),
@@ -249,6 +256,9 @@ class TuneResult:
     n_measurements: int
     rounds: int
     warnings: list = field(default_factory=list)
+    #: settings of the base the tuning written changes, ``[(table, key, value, why)]``
+    #: (:func:`gm_mode_written`)
+    settings: list = field(default_factory=list)
 
     @property
     def seconds_per_evaluation(self) -> float:
@@ -264,6 +274,7 @@ class TuneResult:
                      f"{self.seconds_per_evaluation:.2f} s each, {self.seconds:.0f} s in all"
                      + ("" if self.converged else "; NOT CONVERGED: the best point is reported"))
         lines += [f"warning: {w}" for w in self.warnings]
+        lines += [f"[{tb}] {key} = {val!r} in the tuning written: {why}" for tb, key, val, why in self.settings]
         return "\n".join(lines)
 
 
@@ -281,13 +292,20 @@ class Objective:
         self.one_sided = {}
         self.flat_se = {}   #: name -> standard error when the parameter was found flat and fixed
 
-    def tuning(self, theta, *, gate: bool = False) -> Tuning:
+    def written(self, theta) -> Tuning:
+        """The base tuning with the parameters at ``theta``: the modes and the gate as written."""
         t = self.base
         for p, th in zip(self.params, theta):
             t = p.set(t, float(math.exp(th)))
-        # gate off (the set is fixed) and no divergence recovery (it follows the gate); the
-        # considered groups estimated (the optimal filter of the model, whose innovations are white)
-        return t if gate else replace(estimated_everywhere(t), gate_probability=1.0, recovery_gated_fixes=0)
+        return t
+
+    def tuning(self, theta, *, gate: bool = False) -> Tuning:
+        """The filter of the likelihood at ``theta``: the considered groups estimated (the optimal
+        filter of the model, whose innovations are white), no divergence recovery (it follows the
+        gate), and the gate off (the set is fixed) unless ``gate``, which :meth:`fix_set` uses to
+        choose the set this same filter accepts."""
+        t = replace(estimated_everywhere(self.written(theta)), recovery_gated_fixes=0)
+        return t if gate else replace(t, gate_probability=1.0)
 
     def run(self, tuning: Tuning, gps=None, vectors=None):
         inp = self.inputs
@@ -305,7 +323,7 @@ class Objective:
         """The measurements the gate accepts at ``theta`` become the fixed set (the others are
         removed from the inputs). Returns how many blocks changed against the previous set."""
         res = self.run(self.tuning(theta, gate=True), self.inputs.gps, self.inputs.vectors)
-        gated = {(i.t_ns, i.kind, i.camera) for i in res.innovations if not i.accepted and i.reason == "gated"}
+        gated = {(i.t_ns, i.kind, i.camera) for i in res.innovations if not i.accepted and i.reason == GATE_REASON}
         self.gps, self.vectors = _without(self.inputs.gps, self.inputs.vectors, gated)
         keys = {(i.t_ns, i.kind, i.camera) for i in res.innovations if i.accepted}
         changed = len(keys ^ self.keys) if self.keys is not None else len(keys)
@@ -473,7 +491,7 @@ def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, ma
     """Fisher scoring from ``theta0`` (module docstring); converged when the predicted or the
     achieved decrease of -log L is below ``tol`` (0.1: well below the 0.5 that one standard
     error moves it). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
-    lo, hi = obj.theta0 - math.log(BOUND_FACTOR), obj.theta0 + math.log(BOUND_FACTOR)
+    lo, hi = obj.theta0 - _log_bounds(obj), obj.theta0 + _log_bounds(obj)
     theta = np.clip(np.asarray(theta0, float), lo, hi)
     f, iset = obj(theta)
     lam, converged = 1e-3, False
@@ -573,13 +591,41 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     tuned = base
     for e in ests:
         tuned = PARAMS[e.name].set(tuned, e.value) if e.estimated else tuned
+    settings = gm_mode_written(base, ests)
+    if settings:
+        tuned = replace(tuned, vector_gm_mode="E")
     warn += [f"{e.name} = {e.value * e.to_unit:.4g} {e.unit} has no standard error: {e.reason}"
              for e in ests if e.at_bound]
     n_meas = len(obj.keys) if obj.keys is not None else 0
     for w in warn:
         warnings.warn(w, RuntimeWarning, stacklevel=2)
     return TuneResult(ests, tuned, f_prior, f, obj.evaluations + obj0.evaluations,
-                      time.perf_counter() - t_start, converged, n_meas, rounds, warn)
+                      time.perf_counter() - t_start, converged, n_meas, rounds, warn, settings)
+
+
+#: the parameters of the Gauss-Markov vector errors (their stationary sigma and correlation time)
+GM_PARAMS = ("vector_cov_scale_hor", "vector_cov_scale_sun", "vector_cov_scale_moon", "correlation_time")
+
+
+def gm_mode_written(base: Tuning, ests) -> list:
+    """``[("vectors", "gm_mode", "E", why)]`` when the base considers the Gauss-Markov vector
+    states and the flight estimated one of their parameters, else ``[]``.
+
+    The estimate is the maximum of the likelihood of the filter that estimates them: its innovation
+    covariance holds the states' covariance after their estimation, which a flight fixes through
+    the increments of the process (driving noise ``2 k^2 P_c / T_c``, 003 eq. (45)). A Schmidt
+    filter that considers them keeps their stationary covariance ``k^2 P_c`` in every S; when T_c
+    is not short against the flight, the likelihood is flat along ``k^2 / T_c`` = const (the
+    errors are biases with one draw per camera and target), so that covariance is not a property
+    of the flight and the considered filter's NIS is not set by the estimate (docs/tuning.md
+    "The filter the estimate is for"). The tuning written therefore estimates them."""
+    if base.vector_gm_mode != "C":
+        return []
+    done = [e.name for e in ests if e.name in GM_PARAMS and e.estimated]
+    if not done:
+        return []
+    return [("vectors", "gm_mode", "E", f"estimated: the likelihood of {', '.join(done)} is that of the filter "
+                                         f"estimating the Gauss-Markov vector states (base: considered)")]
 
 
 def _one_sided(obj: Objective, theta, f: float, weak, mapper=map) -> np.ndarray:
@@ -625,7 +671,7 @@ def _refit(obj: Objective, theta, weak, max_iter, mapper):
     """Re-estimate the identified parameters with the weak ones at their prior."""
     keep = ~weak
     sub = Objective(obj.inputs, obj.base, [p for p, k in zip(obj.params, keep) if not k], obj.progress)
-    base_w = sub.tuning(sub.theta0, gate=True)   # weak ones at their prior (the base's values)
+    base_w = sub.written(sub.theta0)   # weak ones at their prior (the base's values)
     sub = Objective(obj.inputs, base_w, [p for p, k in zip(obj.params, keep) if k], obj.progress)
     sub.gps, sub.vectors, sub.keys = obj.gps, obj.vectors, obj.keys
     th, f, iset, info_k, _, conv = optimise(sub, theta[keep], max_iter=max_iter, mapper=mapper)
@@ -641,8 +687,13 @@ def _refit(obj: Objective, theta, weak, max_iter, mapper):
     return full, f, iset, info, se, conv
 
 
+def _log_bounds(obj: Objective) -> np.ndarray:
+    """Per parameter, the log of the factor the search stays within (:attr:`Param.bound`)."""
+    return np.log([p.bound for p in obj.params]) if obj.params else np.zeros(0)
+
+
 def _at_bound(obj: Objective, theta) -> np.ndarray:
-    return np.abs(np.abs(theta - obj.theta0) - math.log(BOUND_FACTOR)) < 1e-9
+    return np.abs(np.abs(theta - obj.theta0) - _log_bounds(obj)) < 1e-9
 
 
 def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> list:
@@ -706,6 +757,9 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
         else:
             tables.setdefault(tb, {}).update(kv)
     lines = [f"# {ln}" if ln else "#" for ln in header.splitlines()]
+    for tb, key, val, why in result.settings:
+        tables.setdefault(tb, {})[key] = val
+        comments[(tb, key)] = why
     for e in result.estimates:
         if e.at_bound:
             for tb, key, val in PARAMS[e.name].entries(e.value):
