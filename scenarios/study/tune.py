@@ -9,8 +9,9 @@ The measurement set is fixed
 ----------------------------
 The chi-square gate depends on the parameters: a measurement near the gate enters or leaves the
 sum as they change, and the objective jumps. Each optimisation therefore runs on a fixed set,
-with the gate switched off: the measurements the gate accepts at the starting tuning (its other
-measurements are removed from the inputs). After it converges the gate is applied again at the
+with the gate switched off: the measurements the gate of the likelihood's filter accepts at the
+starting tuning (the ones it rejects are removed from the inputs, so that the replay's gate and
+the likelihood see the same measurements). After it converges the gate is applied again at the
 estimate; if the set changed, the optimisation is repeated on the new set (at most
 ``max_rounds`` times). The estimate is thus consistent with its own gate, and within each
 optimisation the objective is smooth.
@@ -21,13 +22,14 @@ The prediction-error decomposition is the likelihood of the measurements only wh
 innovations are white, i.e. for the optimal filter of the model. A Schmidt filter's considered
 errors are never corrected, so its innovations are correlated in time. Each evaluation therefore
 runs the filter with every considered ("C") group estimated (:func:`estimated_everywhere`); the
-tuning written keeps the modes of the base tuning.
+tuning written keeps the modes of the base tuning, except the Gauss-Markov vector states when
+their parameters were estimated (:func:`gm_mode_written`): a Schmidt filter keeps their
+stationary covariance in every innovation covariance, which the likelihood does not fix.
 
 The optimiser
 -------------
 Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping,
-in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior, :data:`GM_TIME_BOUND` for
-the Gauss-Markov correlation time) and a
+in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
 trust region of a factor 4 per step. One iteration costs 2p + 1 filter runs: at theta and at
 theta +- h e_i (central differences, h = :data:`STEP`). Those runs give the gradient of the
 objective and the derivatives of every innovation and its covariance, hence the Fisher
@@ -94,9 +96,6 @@ SE_LOG_IDENTIFIED = math.log(1.0 + REL_ACCURACY) / Z_IDENTIFIED
 #: parameter kept at its prior): the flight does not pin it to a factor 2 at 1 sigma
 SE_LOG_FLAT = math.log(2.0)
 BOUND_FACTOR = 30.0    #: the estimate stays within this factor of the prior
-#: the factor for the Gauss-Markov correlation time above its prior: up to the random walk's limit
-#: (T_c = 20 s x 1000 is hours, longer than a flight; docs/tuning.md "The filter the estimate is for")
-GM_TIME_BOUND = 1000.0
 MAX_STEP_LOG = math.log(4.0)   #: largest change of a log-parameter in one iteration
 RIDGE = 1.0            #: added to the information in the step (not in the standard errors)
 #: rise of -log L at the prior beyond which a weak parameter keeps its estimate (chi-square 1 dof
@@ -120,7 +119,6 @@ class Param:
     toml: tuple
     applies: Callable = lambda t: None   #: a reason the tuning does not use it, or None
     to_unit: float = 1.0                 #: SI -> the unit shown
-    bound: float = BOUND_FACTOR          #: the search stays within this factor of the prior
 
     def entries(self, value: float) -> list:
         """``[(table, key, value)]`` of the TOML for the SI value."""
@@ -162,7 +160,7 @@ def _params() -> dict:
                                             (("vectors", f"cov_scale_{tg}", 1.0),))
     p["correlation_time"] = Param("correlation_time", "s", lambda t: t.correlation_time_s,
                                   lambda t, v: replace(t, correlation_time_s=v), frozenset(VECTOR_KINDS),
-                                  (("vectors", "correlation_time_s", 1.0),), _gm_used, bound=GM_TIME_BOUND)
+                                  (("vectors", "correlation_time_s", 1.0),), _gm_used)
     p["gyro_white"] = Param("gyro_white", "deg/sqrt(h)", lambda t: t.gyro_white, lambda t, v: replace(t, gyro_white=v),
                             frozenset(AIDING), (("imu", "gyro_white_noise_deg_rth", RAD_S_TO_DEG_RTH),
                                                 ("imu", "gyro_white_noise_extra_deg_rth", None)),
@@ -491,7 +489,7 @@ def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, ma
     """Fisher scoring from ``theta0`` (module docstring); converged when the predicted or the
     achieved decrease of -log L is below ``tol`` (0.1: well below the 0.5 that one standard
     error moves it). Returns ``(theta, f, iset, info, hdiag, converged)`` at the best point."""
-    lo, hi = obj.theta0 - _log_bounds(obj), obj.theta0 + _log_bounds(obj)
+    lo, hi = obj.theta0 - math.log(BOUND_FACTOR), obj.theta0 + math.log(BOUND_FACTOR)
     theta = np.clip(np.asarray(theta0, float), lo, hi)
     f, iset = obj(theta)
     lam, converged = 1e-3, False
@@ -687,13 +685,8 @@ def _refit(obj: Objective, theta, weak, max_iter, mapper):
     return full, f, iset, info, se, conv
 
 
-def _log_bounds(obj: Objective) -> np.ndarray:
-    """Per parameter, the log of the factor the search stays within (:attr:`Param.bound`)."""
-    return np.log([p.bound for p in obj.params]) if obj.params else np.zeros(0)
-
-
 def _at_bound(obj: Objective, theta) -> np.ndarray:
-    return np.abs(np.abs(theta - obj.theta0) - _log_bounds(obj)) < 1e-9
+    return np.abs(np.abs(theta - obj.theta0) - math.log(BOUND_FACTOR)) < 1e-9
 
 
 def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> list:
