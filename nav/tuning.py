@@ -9,7 +9,8 @@ default, an unknown table or key is an error naming it::
                 gyro_white_noise_deg_rth, gyro_white_noise_extra_deg_rth,
                 gyro_range_deg_s, accel_range_g, max_gap_s
     [states.<group>]  mode = "E" | "C" | "off", sigma_<unit>  (groups and units: ``_GROUPS``;
-                [states.edge_height] also takes correlation_time_s, 0 for a constant;
+                [states.edge_height] also takes correlation_time_s, 0 for a constant,
+                and edge = "limb" | "threshold";
                 [states.gyro_gm] takes correlation_time_s, > 0)
     [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg,
                 white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon)
@@ -91,6 +92,11 @@ class Tuning:
     edge_height_tau_s : float
         Correlation time of ``h_e`` as a first-order Gauss-Markov process about its initial value
         with the stationary sigma ``edge_height.sigma`` [s]; 0: a constant.
+    edge_height_edge : str
+        The edge ``h_e`` describes (the vision's ``[earth.edge] state_edge``): "limb" (the limb
+        edge where the limb model is on, the default) or "threshold" (the threshold edge on every
+        frame: for a camera whose arcs cannot check the limb model, docs/vision.md); TOML
+        ``[states.edge_height] edge``.
     gyro_gm : StateGroupTuning
         First-order Gauss-Markov gyro error ``g_w`` [rad/s] per axis, beside the constant bias
         ``gyro_bias``: the correlated drift at time scales of ``gyro_gm_tau_s`` (the white gyro
@@ -176,6 +182,7 @@ class Tuning:
     camera_clock_offset: StateGroupTuning = StateGroupTuning("off", 0.05)
     edge_height: StateGroupTuning = StateGroupTuning("off", 20e3)
     edge_height_tau_s: float = 0.0
+    edge_height_edge: str = "limb"
     gyro_gm: StateGroupTuning = StateGroupTuning("off", math.radians(5.0) / 3600.0)
     gyro_gm_tau_s: float = 100.0
     vector_white: float = 0.005
@@ -371,6 +378,18 @@ def _group_tau(states: dict, kw: dict, group: str, field_: str, nonzero: bool = 
     return {**states, group: {k: v for k, v in g.items() if k != "correlation_time_s"}}
 
 
+def _edge_choice(states: dict, kw: dict) -> dict:
+    """``[states.edge_height] edge`` ("limb" or "threshold") into ``kw["edge_height_edge"]``; the
+    states without that key."""
+    g = states.get("edge_height")
+    if not isinstance(g, dict) or "edge" not in g:
+        return states
+    if g["edge"] not in ("limb", "threshold"):
+        raise ValueError(f'tuning [states.edge_height] edge: expected "limb" or "threshold", got {g["edge"]!r}')
+    kw["edge_height_edge"] = g["edge"]
+    return {**states, "edge_height": {k: v for k, v in g.items() if k != "edge"}}
+
+
 def tuning_from_dict(d: dict) -> Tuning:
     """Build a :class:`Tuning` from a dict of overrides shaped like a tuning TOML file (tables
     ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``, ``[recovery]``, ``[gps]``; units in the key
@@ -410,6 +429,7 @@ def tuning_from_dict(d: dict) -> Tuning:
     if unknown:
         raise ValueError(f"tuning [states]: unknown groups {sorted(unknown)}; expected {sorted(_GROUPS)}")
     states = _group_tau(states, kw, "edge_height", "edge_height_tau_s")
+    states = _edge_choice(states, kw)
     states = _group_tau(states, kw, "gyro_gm", "gyro_gm_tau_s", nonzero=True)
     for key, (unit_key, scale) in _GROUPS.items():
         kw[key] = _group(states, key, unit_key, scale, getattr(base, key))

@@ -219,6 +219,45 @@ def test_vision_filter_state_vector(rendered_horizon):
     np.testing.assert_allclose(fixed[1].e_c - fixed[0].e_c, -b.dedge_c * 4e3, atol=0.1 * np.linalg.norm(b.dedge_c) * 4e3)
 
 
+def test_threshold_state_edge(rendered_horizon):
+    """``edge.state_edge = "threshold"`` with the limb model on: the record is the threshold
+    edge's, bit-identical in direction, covariance, sensitivity and fitted height to the
+    filter-state record with the limb model off (the threshold edge the state then describes),
+    and it carries no arc's own height (NaN, inf: the filter gets no height row); without
+    ``filter_state`` the option changes nothing. A value other than "limb" or "threshold" is an
+    error naming it."""
+    from vision.config import EdgeHeightOptions
+    from vision.frontend import FramePrior, process_frame
+    cam, R, x, img = rendered_horizon
+    prior = FramePrior(x, R)
+    cfg = _edge_config(cam, filter_state=True)
+    limb_on = dataclasses.replace(cfg, earth=dataclasses.replace(
+        cfg.earth, limb=dataclasses.replace(cfg.earth.limb, fraction=0.5),
+        edge=dataclasses.replace(cfg.earth.edge, state_edge="threshold")))
+    ref, thr = (process_frame(img, cam, c, prior=prior).record("earth") for c in (cfg, limb_on))
+    for k in ("e_c", "P_c", "dedge_c"):
+        np.testing.assert_array_equal(getattr(thr, k), getattr(ref, k))
+    assert thr.edge_height_m == ref.edge_height_m and np.isfinite(ref.edge_data_sigma_m)
+    assert np.isnan(thr.edge_data_m) and thr.edge_data_sigma_m == np.inf
+    off = [dataclasses.replace(limb_on, earth=dataclasses.replace(limb_on.earth, edge=dataclasses.replace(
+        limb_on.earth.edge, filter_state=False, state_edge=e))) for e in ("limb", "threshold")]
+    a, b = (process_frame(img, cam, c, prior=prior).record("earth") for c in off)
+    np.testing.assert_array_equal(a.e_c, b.e_c)
+    np.testing.assert_array_equal(a.P_c, b.P_c)
+    with pytest.raises(ValueError, match="state_edge"):
+        EdgeHeightOptions(state_edge="disc")
+
+
+def test_tuning_edge_choice():
+    """``[states.edge_height] edge`` sets ``Tuning.edge_height_edge`` (default "limb"); another
+    value is an error naming the key."""
+    assert Tuning().edge_height_edge == "limb"
+    t = tuning_from_toml('[states.edge_height]\nmode = "E"\nsigma_km = 25\nedge = "threshold"\n')
+    assert t.edge_height_edge == "threshold" and t.edge_height.sigma == 25e3 and t.edge_height.on
+    with pytest.raises(ValueError, match=r"\[states.edge_height\] edge"):
+        tuning_from_toml('[states.edge_height]\nedge = "disc"\n')
+
+
 def _fixed_height(cam, h_m: float):
     """`_edge_config` with the height not estimated, fixed at ``h_m``."""
     cfg = _edge_config(cam, estimate=False)

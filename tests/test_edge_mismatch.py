@@ -53,13 +53,19 @@ def test_low_edge_moves_the_estimated_height(setup):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="containment 0.953 on the thin profile at 0 km (41 of 43 found frames): "
-                   "two camera-0 twilight frames whose limb edge lies on the ground, 1.5-1.9 deg off against "
-                   "1.3-1.4 deg of 3 sigma; strict: it reports when the acceptance is met")
 def test_full_study_containment():
     """The acceptance: for every rendered edge height 0-60 km and both limb profiles, per-frame
     3-sigma containment >= 97 % with the defaults."""
     rows = em.run_study(48)
+    bad = [(r["case"], r["containment"]) for r in rows if not r["containment"] >= 0.97]
+    assert not bad, bad
+
+
+@pytest.mark.slow
+def test_held_out_study_containment():
+    """The same acceptance on 40 other frames of the coast (T+68..426, at other times than the
+    48; no threshold was chosen on them)."""
+    rows = em.run_study(40, span_s=(68.0, 426.0))
     bad = [(r["case"], r["containment"]) for r in rows if not r["containment"] >= 0.97]
     assert not bad, bad
 
@@ -139,3 +145,118 @@ def test_narrow_pinhole_limb_edge_is_cross_checked_by_the_threshold_edge():
         assert not res.targets["earth"].limb_edge and math.isfinite(res.targets["earth"].limb_rejected_m)
         err = _err_deg(rec, e_true)
         assert err <= 0.5 and err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
+
+
+def _twilight_frames(case, times_s):
+    """(camera, default config, [(t_s, FrameResult, truth nadir, FrameTruth)]) of camera 0's frames
+    of the 48-frame study at ``times_s`` [s] in the rendering ``case``, processed with the study's
+    full prior; the second item of each runs with ``limb.edge_width_max`` = 0 (no test)."""
+    import dataclasses
+
+    import numpy as np
+
+    from nav import ephemeris
+    from scenarios.flightlog.jpeg import decode_frame
+    from scenarios.sim import render
+    from vision import mask as vmask
+    from vision.config import default_config
+    from vision.frontend import FramePrior, process_frame
+
+    fl, frames = em.atek_frames(48)
+    cam = fl.cameras[0].camera
+    cfg = default_config(cam.fx)
+    off = dataclasses.replace(cfg, earth=dataclasses.replace(
+        cfg.earth, limb=dataclasses.replace(cfg.earth.limb, edge_width_max=0.0)))
+    mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
+    cache = em.default_cache()
+    cache.mkdir(parents=True, exist_ok=True)
+    out = []
+    for t_s, k, r in frames:
+        if k != 0 or min(abs(t_s - t) for t in times_s) > 0.5:
+            continue
+        jpg, e_true = em._render(case, cam, r, k, cache)
+        img = decode_frame(jpg)
+        prior = FramePrior(r.x_e, r.R_ec, sun_c=r.R_ec.T @ ephemeris.sun_direction_e(r.t_ns, r.x_e))
+        res = [process_frame(img, cam, c, mask=mask, prior=prior, rng=np.random.default_rng(0), camera_id=k)
+               for c in (cfg, off)]
+        out.append((t_s, res, e_true, r))
+    assert len(out) == len(times_s)
+    return cam, out
+
+
+def _hits_ground(cam, tr, r):
+    """Fraction of the fitted pixels of the Earth target ``tr`` whose rays (truth pose) hit the
+    ellipsoid (`scenarios.sim.render.ray_ellipsoid`)."""
+    import numpy as np
+
+    from scenarios.sim.render import ray_ellipsoid
+    from vision.camera import unproject
+
+    rays_e = unproject(cam, tr.points[tr.inlier_mask]) @ np.asarray(r.R_ec).T
+    return float(ray_ellipsoid(np.asarray(r.x_e, float), rays_e)[0].mean())
+
+
+def test_twilight_ground_gradient_is_not_taken_for_the_limb():
+    """Camera 0 at T+95 and T+111 of the coast, thin-6km profile at 0 km (the limb too faint to
+    peak, the Sun 0-1.5 deg below the horizon at the tangent points): the limb profiles' maxima lie
+    on the dim twilight ground. Without the flank-width test the fraction-of-peak edge is used,
+    nearly every one of its pixels hits the ground (the renderer's ellipsoid, truth pose) and the
+    nadir is outside its 3 sigma (1.53 / 1.93 deg against 1.44 / 1.34). With the defaults the
+    profiles' median flank is more than ``limb.edge_width_max`` (1.3) times eq. (4)'s (measured
+    1.5 / 2.5; no rendered limb exceeds 1.14), the threshold edge is used, and its nadir is inside
+    3 sigma (0.27 / 0.68 deg)."""
+    cam, rows = _twilight_frames(em.Case(0.0, "thin-6km"), (95.0, 111.0))
+    for t_s, (res, res_off), e_true, r in rows:
+        tr_off, rec_off = res_off.targets["earth"], res_off.record("earth")
+        assert tr_off.limb_path == "limb" and tr_off.limb_edge
+        assert _hits_ground(cam, tr_off, r) > 0.9, t_s
+        assert _err_deg(rec_off, e_true) > 3.0 * rec_off.sigma_deg, t_s
+        tr, rec = res.targets["earth"], res.record("earth")
+        assert not tr.limb_edge and tr.limb_width_ratio > 1.3, (t_s, tr.limb_width_ratio)
+        err = _err_deg(rec, e_true)
+        assert err <= 3.0 * rec.sigma_deg and err < 0.8, (t_s, err, rec.sigma_deg)
+
+
+def test_twilight_limb_keeps_the_limb_edge():
+    """The same frame (camera 0, T+111, the Sun ~1 deg below the horizon at the tangent points) with
+    the standard profile at 25 km: the limb peaks above the surface (its fitted pixels' rays miss
+    the ellipsoid), the profiles' median flank is eq. (4)'s within 0.75-1.15 (the standard profile's
+    scale height over the model's 8 km, minus the shadow's cut), and the limb edge is used, 0.19
+    deg from the truth."""
+    cam, rows = _twilight_frames(em.Case(25e3), (111.0,))
+    t_s, (res, _), e_true, r = rows[0]
+    tr, rec = res.targets["earth"], res.record("earth")
+    assert tr.limb_edge and tr.limb_path == "limb" and 0.75 <= tr.limb_width_ratio <= 1.15, tr.limb_width_ratio
+    assert _hits_ground(cam, tr, r) == 0.0
+    err = _err_deg(rec, e_true)
+    assert err < 0.3 and err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
+
+
+def test_ground_edge_under_a_shadowed_limb_gives_way_to_the_limb():
+    """Camera 0 at T+111, standard profile at 60 km: the Sun is below the horizon at the tangent
+    points, the Earth's shadow darkens the lower atmosphere, and the sunlit limb above it is a
+    bright arc of its own above a dark band. Two candidates are accepted; by residual the ground's
+    edge wins (every one of its pixels' rays hits the ellipsoid, truth pose), 1.8 deg off against
+    1.4 deg of 3 sigma. Its limb profiles are the ground's (median flank > 1.3 x eq. (4); measured
+    3.1), so the accepted candidate beyond it is used (`vision.frontend._outer_candidate`): its
+    pixels' true tangent heights are above 40 km (the limb) and the nadir is within 0.2 deg and 3
+    sigma. With ``limb.edge_width_max`` = 0 the ground edge is kept (the miss)."""
+    import numpy as np
+
+    from scenarios.sim.render import ray_ellipsoid
+    from vision.camera import unproject
+
+    cam, rows = _twilight_frames(em.Case(60e3), (111.0,))
+    t_s, (res, res_off), e_true, r = rows[0]
+    for rr, outer in ((res, True), (res_off, False)):
+        tr, rec = rr.targets["earth"], rr.record("earth")
+        rays_e = unproject(cam, tr.detection.candidates[tr.winner].points) @ np.asarray(r.R_ec).T
+        hit, _, h_t = ray_ellipsoid(np.asarray(r.x_e, float), rays_e)
+        err = _err_deg(rec, e_true)
+        if outer:
+            assert tr.inner_candidate is not None and tr.inner_width_ratio > 1.3, tr.inner_width_ratio
+            assert not hit.any() and np.median(h_t) > 40e3, np.median(h_t)
+            assert err < 0.2 and err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
+        else:
+            assert tr.inner_candidate is None and hit.mean() > 0.99
+            assert err > 3.0 * rec.sigma_deg, (err, rec.sigma_deg)

@@ -3,6 +3,7 @@ vision on its images, the filter (the edge height a state, the Moon a target) an
 (scenarios/study/orbit_mismatch.py); the figures are checked against the simulator's truth."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,8 +25,10 @@ def orbit_log(tmp_path_factory):
     sc = d / "orbit-short.toml"
     sc.write_text(text.replace("duration_s = 240.0", "duration_s = 120.0").replace("rate_hz = 0.5\n", "rate_hz = 0.25\n"))
     log = d / "o.mcap"
-    subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", str(sc), "-o", str(log), "--quiet"],
-                   check=True, cwd=ROOT, capture_output=True)
+    out = subprocess.run([sys.executable, "-m", "scenarios.cli", "simulate", str(sc), "-o", str(log), "--quiet"],
+                         check=True, cwd=ROOT, capture_output=True, text=True).stdout
+    lo, hi = map(float, re.search(r"; height ([\d.]+)-([\d.]+) km;", out).groups())
+    assert 450 < lo < hi < 550 and "apogee" not in out, out   # an orbit has no apogee to report
     return log
 
 
@@ -40,8 +43,9 @@ def test_orbit_simulate_and_replay(orbit_log, tmp_path):
       inside 3 sigma of P_c plus the smoothed height's variance (per-frame Earth nadir containment);
     - the smoothed attitude is inside its 3 sigma on every axis at every epoch, the forward filter's
       final one too, and its attitude NEES is above the 95 % chi-square band on <= 5 % of the
-      measurement epochs (the filter not optimistic; below the band it is cautious: the edge
-      height is learned from the flank-path frames, whose heights vary frame to frame);
+      measurement epochs (the filter not optimistic; below the band it is cautious: the vision's
+      covariance given the height allows for the edge's height varying along the limb, which the
+      threshold edge the state describes here hardly does);
     - position RMS below 2 m (GPS at 3 m per axis, smoothed)."""
     rr = om.replay_log(orbit_log, tmp_path / "o.solution.mcap")
     f = om.flight_figures(rr)
@@ -66,22 +70,23 @@ def study_rows(tmp_path_factory):
 @pytest.mark.slow
 def test_orbit_edge_height_study(study_rows):
     """The study over the rendered edge heights 0-60 km and both limb profiles (121 frames each):
-    every case finds the Moon in its frames, learns its edge height within 3 km, has every raw
-    vector inside 3 sigma before anything is learned, and no more than 10 % of the moved
-    vectors outside 3 sigma after."""
+    every case finds the Moon in its frames, learns its edge height within 3 km (the acceptance;
+    measured 0.0-0.2 km with a smoothed sigma of 2.1 km), has every raw vector inside 3 sigma
+    before anything is learned and after, and no more than 5 % of its measurement epochs with an
+    attitude NEES above the 95 % band (the filter not optimistic)."""
     for r in study_rows:
         assert r["moon_found"] == r["moon_frames"] > 0, r
         assert abs(r["edge_smoothed_km"] - r["edge_truth_km"]) <= 3.0, r
-        assert r["containment_prior"] == 1.0 and r["containment"] >= 0.90, r
+        assert r["containment_prior"] == 1.0 and r["containment"] == 1.0, r
+        assert r["nees_above_band"] <= 0.05, r
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="nadir residuals at the learned height 0.12-0.18 deg in 4 of 10 cases "
-                   "(standard 10 and 45 km, thin-6km 25 and 45 km): the flank path's per-frame heights are not one "
-                   "edge height; strict: it reports when the acceptance is met")
 def test_orbit_nadir_residuals_at_the_learned_height(study_rows):
     """The acceptance for the narrow pinhole orbit: nadir residuals with the learned height RMS
-    <= 0.10 deg and every frame inside 3 sigma, in every case."""
+    <= 0.10 deg and every frame inside 3 sigma, in every case (the state describes the threshold
+    edge, `tuning/pinhole-orbit.toml`; measured 0.003-0.009 deg, docs/vision.md "Which edge the
+    state describes")."""
     bad = [(r["case"], round(r["nadir_rms_deg"], 3), r["containment"]) for r in study_rows
            if not (r["nadir_rms_deg"] <= 0.10 and r["containment"] == 1.0)]
     assert not bad, bad

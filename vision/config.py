@@ -291,7 +291,16 @@ class LimbOptions(_Checks):
         its crossing lies kilometres low. Tested where the Sun at the tangent point is above
         `vision.limb.resolved_sun_sine` (12.4 deg with the defaults: the limb's own drop above
         the surface is then less than the detector's 15 %). Measured ratios: 0.8-1.15 on rendered
-        limbs (5-95 %), 1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test.
+        limbs (5-95 %), 1.0-2.4 on profiles peaking on sunlit clouds (median 2.1). 0: no test
+        (neither this nor ``edge_width_max``).
+    edge_width_max : the limb edge is not used (the threshold edge is) when the median of that
+        ratio over its usable profiles, at any Sun elevation, exceeds this: no limb has a flank
+        that wide (a scale height above 10.4 km at 1.3; the Earth's shadow and thinner air make it
+        narrower), the profiles follow a brightness gradient on the twilight ground and their
+        crossings lie on the disc. Measured frame medians: 0.72-1.14 on rendered limbs (standard
+        and 6 km scale-height profiles, Sun -1.3 to +22 deg), at most 1.09 on the vision bench;
+        1.48-2.47 where the limb edge on the ground missed its 3 sigma, 3.1-5.1 on ground edges
+        under a limb separated by the Earth's shadow (`vision.frontend._outer_candidate`). 0: no test.
     flank : `FlankOptions`; calibrate : `CalibrationOptions` (clipped limb maxima).
     """
 
@@ -312,6 +321,7 @@ class LimbOptions(_Checks):
     aerosol_weight: float = 0.25
     aerosol_g: float = 0.75
     flank_width_max: float = 1.3
+    edge_width_max: float = 1.3
     flank: FlankOptions = FlankOptions()
     calibrate: CalibrationOptions = CalibrationOptions()
 
@@ -342,6 +352,8 @@ class LimbOptions(_Checks):
             self._bad("aerosol_g", "an asymmetry parameter in [0, 1)")
         if not (self.flank_width_max == 0.0 or 1.0 <= self.flank_width_max <= 10.0):
             self._bad("flank_width_max", "0 (no test) or a ratio in [1, 10]")
+        if not (self.edge_width_max == 0.0 or 1.0 <= self.edge_width_max <= 10.0):
+            self._bad("edge_width_max", "0 (no test) or a ratio in [1, 10]")
 
 
 @dataclass(frozen=True)
@@ -467,6 +479,15 @@ class EdgeHeightOptions(_Checks):
         ``VectorRecord.dedge_c`` the sensitivity ``d e_c / d h_e`` [1/m] at ``edge_height_m``,
         and the arc's own height ``edge_data_m`` with its sigma
         (`vision.edge_height.conditional_on_height`); records of the other edge are as without it.
+    state_edge : the edge the filter's state describes with ``filter_state``: "limb" (the limb edge
+        where the limb model is on, its "limb" and "flank" paths; else the threshold edge) or
+        "threshold" (the threshold edge on every frame, the limb model not used for the Earth's
+        vector): for a camera whose arc cannot check the limb model's height (a narrow field of
+        view, see ``cross_check_ratio``), where the limb model's per-pixel heights err from frame
+        to frame and along the arc in ways no edge height describes, and the threshold edge is one
+        brightness level whose height the flight learns; its records give no arc's own height
+        (its error repeats from frame to frame on such a camera, docs/vision.md). Without
+        ``filter_state`` it has no effect.
     offset_gate : the flight's limb edge height offset (`vision.limb_offset`: one per camera, the
         weighted mean over its limb-edge frames of the arc's own height minus the prior's mean)
         tightens the limb edge's prior to N(mean, offset sigma^2 + limb term^2) when
@@ -501,6 +522,7 @@ class EdgeHeightOptions(_Checks):
     limb_gate: float = 3.0
     cross_check_ratio: float = 3.0
     filter_state: bool = False
+    state_edge: str = "limb"
     offset_gate: float = 3.0
     offset_min_frames: int = 5
     offset_resolution_m: float = 3000.0
@@ -517,6 +539,8 @@ class EdgeHeightOptions(_Checks):
             self._bad("estimate", "true or false")
         if not isinstance(self.filter_state, bool):
             self._bad("filter_state", "true or false")
+        if self.state_edge not in ("limb", "threshold"):
+            self._bad("state_edge", '"limb" or "threshold"')
         self._finite(("limb_prior_sigma_m", "along_sigma_m", "limb_gate", "cross_check_ratio"))
         if not (math.isnan(self.start_m) or 0.0 <= self.start_m < 200e3):
             self._bad("start_m", "NaN (atmosphere_m) or 0 <= h < 200 km")

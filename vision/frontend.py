@@ -27,7 +27,9 @@ Pipeline per target (`process_frame`; options: `vision.config`)
    pixels a few pixels on the body side of the edge must be bright and those on the space side
    dark (`vision.probes.side_score`); a fit that fails it is retried from its mirror image
    (`vision.nadir.mirrored_direction`, refined locally).
-4. The accepted candidate with the smallest residual wins (003 §3.4). Only the winner is
+4. The accepted candidate with the smallest residual wins (003 §3.4); for the Earth, when the
+   winner's limb profiles are the ground's, an accepted candidate beyond its edge is processed
+   instead (`_outer_candidate`: the air lies above the ground). Only the winner is
    processed fully: at most ``fit.rays`` of its pixels are unprojected with the Jacobian
    (`vision.camera.unproject_jacobian`), inliers re-selected, refitted, and the O(m) covariance of
    003 eq. (33) with the correlated pixel noise (R, L) of eqs. (34)-(36), (38) is computed
@@ -216,15 +218,19 @@ def _limb_consistent(ef, sigma_l: float, tc: TargetConfig) -> bool:
 def _earth_final(out: TargetResult, image, camera, tc: TargetConfig, model, limb, w, L_eff: float, timings):
     """Earth after the refit ``w`` (`_refit_winner`): the limb edge (`limb_refit`) when the prior
     allows it and its arc agrees with the limb model (`_limb_consistent`), else the threshold
-    edge; each with its edge height fitted and the covariance (`_earth_covariance`). Returns
+    edge (the threshold edge alone where the filter's state describes it, `_threshold_state`);
+    each with its edge height fitted and the covariance (`_earth_covariance`). Returns
     (e_c, P_c, alpha, (height, sigma), uv, inliers, fit) and fills ``out``'s limb and edge fields."""
     uv, rays_c, J, pa, H, fit, inl, step = w
     t0 = time.perf_counter()
     pa_med = median(pa)
     if limb is not None and tc.limb.fraction > 0:
-        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl])
+        info: dict = {}
+        lr = limb_refit(image, camera, tc, limb, uv[inl], rays_c[inl], pa[inl], model.to_camera(fit.e_c), J[inl],
+                        info=info)
         timings["earth.limb"] = time.perf_counter() - t0
-        if lr is not None:
+        out.limb_width_ratio = info.get("width_ratio", math.nan)
+        if lr is not None and not _threshold_state(tc):
             model_l, fit_l, uv_l, rays_l, J_l, inl_l, sigma_l = lr[:7]
             res = _earth_covariance(model_l, fit_l, model_l.to_fit(rays_l), rays_l, J_l, inl_l, tc, L_eff,
                                     max(sigma_l, tc.edge.limb_prior_sigma_m), tc.limb.height_m,
@@ -250,7 +256,14 @@ def _threshold_covariance(model, fit, w, tc: TargetConfig, L_eff: float, pa_med:
     _, rays_c, J, _, H, _, inl, _ = w
     return _earth_covariance(model, fit, H, rays_c, J, inl, tc, L_eff, tc.atmosphere_sigma_m, model_height_m(tc),
                              tc.ransac.threshold_px * pa_med, tc.edge.along_sigma_m, tc.atmosphere_m,
-                             tc.edge.filter_state and not tc.limb.fraction > 0)
+                             tc.edge.filter_state and (_threshold_state(tc) or not tc.limb.fraction > 0))
+
+
+def _threshold_state(tc: TargetConfig) -> bool:
+    """The filter's edge-height state describes the threshold edge on every frame
+    (``edge.state_edge`` "threshold" with ``edge.filter_state``): the limb edge is not used for
+    the vector (its profiles still judge whether the winner's edge is a limb, `_outer_candidate`)."""
+    return tc.edge.filter_state and tc.edge.state_edge == "threshold"
 
 
 def _limb_checked(ef, sigma_p: float, tc: TargetConfig) -> bool:
@@ -350,7 +363,24 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
                       f"(best: candidate {best.index}, {best.reason})")
         return out
     win = min(good, key=lambda r: r.residual)
-    cand = det.candidates[win.index]
+    res = _winner_record(out, win, image, camera, tc, model, limb, timings, baseline, ids, t2)
+    alt = _outer_candidate(res, good, win, camera, tc) if model is not None and res.record is not None else None
+    if alt is not None:
+        out2 = TargetResult(name, det, candidates=results, inner_candidate=win.index,
+                            inner_width_ratio=res.limb_width_ratio)
+        res2 = _winner_record(out2, alt, image, camera, tc, model, limb, timings, baseline, ids, t2)
+        if res2.record is not None:
+            return res2
+    return res
+
+
+def _winner_record(out: TargetResult, win, image, camera, tc: TargetConfig, model, limb, timings, baseline: bool,
+                   ids, t2: float) -> TargetResult:
+    """Step 4 of the module docstring on the accepted candidate ``win`` of ``out.detection``: the
+    refit, the wrong-edge test (Earth), the final fit and covariance, the record; ``out`` with the
+    record or with its reason."""
+    name = out.target
+    cand = out.detection.candidates[win.index]
     out.winner = win.index
     w = _refit_winner(out, win, cand, camera, tc, model)
     if w is None:
@@ -380,17 +410,60 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
                               int(cand.n_pixels), min(n_inl, cand.n_pixels), conic, alpha,
                               model.kind if model is not None else "", float(edge[0]), float(edge[1]),
                               out.edge_dedge_c if model is not None else None,
-                              *_edge_data(out, model))
+                              *_edge_data(out, model, tc))
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out
 
 
-def _edge_data(out: TargetResult, model) -> tuple:
+def _outer_candidate(res: TargetResult, good: list, win, camera, tc: TargetConfig):
+    """The accepted Earth candidate that lies beyond the winner's edge, or None.
+
+    Looked for only when the winner's limb profiles are not a limb's (median flank width above
+    ``limb.edge_width_max``, `vision.limb_refit`): the brightness inside its edge is the ground's.
+    The air lies above the ground, so the Earth's edge is the outermost of its edges about one
+    nadir. With the Sun below the horizon at the tangent points the Earth's shadow darkens the
+    lower atmosphere, and a sunlit limb above it is a bright arc of its own, separated from the
+    ground by a dark band: two accepted candidates, and the ground's may fit its cone a little
+    better. The candidate returned is the best-fitting (smallest residual) of those whose pixels
+    (a subsample of `_OUTER_RAYS`) lie on average more than ``ransac.threshold_px`` beyond the
+    winner's cone (``res.cone_alpha`` about its vector)."""
+    r_w = tc.limb.edge_width_max
+    if not (r_w > 0 and res.limb_width_ratio > r_w) or len(good) < 2:
+        return None
+    e_c = res.record.e_c
+    best = None
+    for r in good:
+        if r.index == win.index or (best is not None and r.residual >= best.residual):
+            continue
+        pts = res.detection.candidates[r.index].points
+        pts = pts[subsample(pts.shape[0], _OUTER_RAYS)]
+        rays = unproject(camera, pts)
+        ok = np.isfinite(rays[:, 2])
+        if ok.sum() < 3:
+            continue
+        beyond = median(angle_residuals(rays[ok], e_c, 0.0)) - res.cone_alpha
+        if beyond > tc.ransac.threshold_px * median(fast_pixel_angle(camera, pts[ok])):
+            best = r
+    return best
+
+
+#: pixels of a candidate whose angle from the winner's vector `_outer_candidate` measures
+_OUTER_RAYS = 64
+
+
+def _edge_data(out: TargetResult, model, tc: TargetConfig) -> tuple:
     """(edge_data_m, edge_data_sigma_m) of the record: the arc's own edge height and its sigma
-    where the filter estimates the height (``dedge_c`` set), else NaN."""
+    where the filter estimates the height (``dedge_c`` set), else NaN; (NaN, inf) where the state
+    describes the threshold edge (`_threshold_state`): there the arc's own height is no
+    measurement of it. Its error is the bend of the edge's height variation along the limb
+    (the Sun's elevation and the scattering angle change along it), which a camera that keeps
+    its arc in one place sees alike in every frame: a common error that independent per-frame
+    measurements would add up (docs/vision.md)."""
     if model is None or out.edge_dedge_c is None:
         return math.nan, math.nan
+    if _threshold_state(tc):
+        return math.nan, math.inf
     return float(out.edge_data_m), float(out.edge_data_sigma_m)
 
 

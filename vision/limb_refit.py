@@ -77,14 +77,16 @@ def _profile_correction(rays_e, h_t, mu, nadir_e, x_e, sun_e, dh_eq5, tc: Target
     return np.interp(np.arange(n), sub[fin], corr[fin])
 
 
-def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=None):
+def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=None, info: dict | None = None):
     """Fraction-of-peak limb edge (`vision.limb`) on the winner's inlier pixels (uv, camera rays,
     pixel angles pa, Jacobians J) and the refit with its height, from the threshold edge's nadir
     e_c (camera frame); ``limb`` = (limb model at ``limb.height_m``, R_ec, x_e, Sun direction in
     e). Returns (model, fit, uv, rays, J, inliers, sigma_d, used fraction, mean shift [m], path,
     threshold-edge thickness [m]) (path "limb", "flank" or "calibrated", `TargetResult.limb_path`),
-    or None when too few limb points are usable and neither fallback applies (the caller keeps the
-    threshold edge).
+    or None when too few limb points are usable and neither fallback applies, or when the usable
+    profiles are not a limb's (`_not_a_limb`) (the caller keeps the threshold edge). ``info``
+    (optional dict) receives ``"width_ratio"``, the median flank-width ratio of the usable profiles
+    (`_flank_widths`; NaN when not measured).
 
     With ``limb.sun_path`` each usable point's crossing height is predicted from the Sun
     elevation at its tangent point (`vision.limb.fraction_height_shift`, eq. (5) of `vision.limb`)
@@ -99,14 +101,10 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=Non
     slope = phase_slope(rays_c, e_c, pa, R_t.T @ sun_e, tc.limb.aerosol_weight, tc.limb.aerosol_g)
     uvn, rn, ok, Jn, rise = limb_edge_points(image, camera, uv, rays_c, e_c, pa, lc, jacobian=True, phase_slope=slope,
                                              rise_level=_RISE_LEVEL)
-    if ok.any() and tc.limb.flank_width_max > 0:
-        ok[ok] = _flank_width_ok(rn[ok], rise[ok] * pa[ok], model_l, R_t, x_e, sun_e, tc, lc.min_drop)
-    el = None
-    twilight = False
-    if ok.any():
-        keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
-        ok[ok] = keep
-        dh_sun = dh
+    el, twilight, dh, ratio = _usable(ok, rn, rise * pa, model_l, R_t, e_c, x_e, sun_e, tc, lc)
+    dh_sun = dh
+    if _not_a_limb(ratio, tc, info):
+        return None
     n_ok = int(ok.sum())
     m = uv.shape[0]
     used = n_ok / max(m, 1)
@@ -163,20 +161,57 @@ def limb_refit(image, camera, tc: TargetConfig, limb, uv, rays_c, pa, e_c, J=Non
 _RISE_LEVEL = 0.8
 
 
-def _flank_width_ok(rays_c, rise_rad, model_l: LimbModel, R_t, x_e, sun_e, tc: TargetConfig, min_drop: float):
-    """Usable limb profiles by their flank width: the tangent-height drop from each crossing
-    (rays_c, camera frame) down to the `_RISE_LEVEL`-of-peak level (``rise_rad`` [rad] down the
-    profile, `LimbModel.height_change`) at most ``limb.flank_width_max`` times the width eq. (4)
-    gives at the Sun elevation of its tangent point (`vision.limb.flank_rise_height`, attitude
-    R_t). A profile whose maximum lies on the Earth's disc (a cloud brighter than the limb's flat
-    top under a high Sun) rises past the limb's top to it: its flank is wider, and its crossing
-    lies kilometres low. Tested where the Sun is high enough for that (`vision.limb.resolved_sun_sine`:
-    the limb's own drop above the surface is then below the detector's ``min_drop``, so the drop
-    it finds lies on the disc); lower, the limb's own maximum is followed by its own drop."""
+def _usable(ok, rn, rise_rad, model_l: LimbModel, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdgeConfig):
+    """The limb profiles that are usable (``ok`` (m,) updated in place): by their flank width
+    (`_flank_widths`) and the Sun's elevation at their tangent points (`_sun_path_shifts`).
+    Returns (el, twilight, dh, ratio) of the usable ones (None, False, None, None when there are
+    none; ratio None without the width test)."""
+    ratio = None
+    if ok.any() and tc.limb.flank_width_max > 0:
+        keep, ratio = _flank_widths(rn[ok], rise_rad[ok], model_l, R_t, x_e, sun_e, tc, lc.min_drop)
+        ok[ok] = keep
+        ratio = ratio[keep]
+    if not ok.any():
+        return None, False, None, ratio
+    keep, dh, el, twilight = _sun_path_shifts(rn[ok], R_t, e_c, x_e, sun_e, tc, lc)
+    ok[ok] = keep
+    return el, twilight, dh, (ratio[keep] if ratio is not None else None)
+
+
+def _flank_widths(rays_c, rise_rad, model_l: LimbModel, R_t, x_e, sun_e, tc: TargetConfig, min_drop: float):
+    """(usable, ratio) of limb profiles by their flank width: ``ratio`` is the tangent-height drop
+    from each crossing (rays_c, camera frame) down to the `_RISE_LEVEL`-of-peak level
+    (``rise_rad`` [rad] down the profile, `LimbModel.height_change`) over the width eq. (4) gives
+    at the Sun elevation of its tangent point (`vision.limb.flank_rise_height`, attitude R_t);
+    ``usable``: at most ``limb.flank_width_max``. A profile whose maximum lies on the Earth's disc
+    (a cloud brighter than the limb's flat top under a high Sun) rises past the limb's top to it:
+    its flank is wider, and its crossing lies kilometres low. Tested per profile where the Sun is
+    high enough for that (`vision.limb.resolved_sun_sine`: the limb's own drop above the surface
+    is then below the detector's ``min_drop``, so the drop it finds lies on the disc); lower, the
+    limb's own maximum is followed by its own drop, and the profiles are judged together
+    (`_not_a_limb`)."""
     _, mu = tangent_height_sun(rays_c @ R_t.T, x_e, sun_e)
     pred = flank_rise_height(mu, tc.limb.fraction, _RISE_LEVEL, tc.limb.scale_height_m)
     mu_res = resolved_sun_sine(tc.limb.fraction, tc.limb.scale_height_m, tc.limb.height_m, min_drop)
-    return (mu <= mu_res) | (-model_l.height_change(-rise_rad) <= tc.limb.flank_width_max * pred)
+    ratio = -model_l.height_change(-rise_rad) / pred
+    return (mu <= mu_res) | (ratio <= tc.limb.flank_width_max), ratio
+
+
+def _not_a_limb(ratio, tc: TargetConfig, info: dict | None) -> bool:
+    """True when the median flank-width ratio (`_flank_widths`) of the usable profiles exceeds
+    ``limb.edge_width_max``: eq. (4) makes a limb's flank ``H ln(u_0.8 / u_0.5)`` high whatever the
+    exposure, phase function or tau, the Earth's shadow under a set Sun only cuts the profile from
+    below (a narrower flank), and a thinner atmosphere narrows it by its scale height; a median
+    flank 1.3 times eq. (4)'s is a scale height of 10.4 km, which the air below 50 km does not
+    have. Such profiles follow a brightness gradient on the ground (the dim twilight ground inside
+    a horizon whose limb is too faint to peak), and their crossings lie on the Earth's disc.
+    Judged on at least 20 profiles; the ratio goes to ``info["width_ratio"]``."""
+    if ratio is None or ratio.size == 0:
+        return False
+    width = median(ratio)
+    if info is not None:
+        info["width_ratio"] = width
+    return tc.limb.edge_width_max > 0 and ratio.size >= 20 and width > tc.limb.edge_width_max
 
 
 def _sun_path_shifts(rays_c, R_t, e_c, x_e, sun_e, tc: TargetConfig, lc: LimbEdgeConfig, keep_all: bool = False):

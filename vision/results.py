@@ -36,7 +36,8 @@ class VectorRecord:
         height ``edge_height_m`` and its covariance (`vision.edge_height.conditional_on_height`).
     edge_data_m, edge_data_sigma_m : Earth with ``EdgeHeightOptions.filter_state``: the arc's own
         (prior-free) edge height [m] and its 1-sigma [m] (inf where the arc cannot separate the
-        height from the tilt), the filter's measurement of the height; NaN otherwise.
+        height from the tilt, or where the state describes the threshold edge:
+        ``EdgeHeightOptions.state_edge``), the filter's measurement of the height; NaN otherwise.
     """
 
     t_ns: int
@@ -108,6 +109,12 @@ class TargetResult:
     limb_sigma_m: float = math.nan  # Earth, limb edge: the limb model's own height term [m] (vision.limb)
     limb_rejected_m: float = math.nan  # Earth: the limb edge's own height [m] when it disagreed with
     # the limb model (EdgeHeightOptions.limb_gate) and the threshold edge was used instead
+    limb_width_ratio: float = math.nan  # Earth: median flank width of the usable limb profiles over
+    # eq. (4)'s (vision.limb_refit); above LimbOptions.edge_width_max the limb edge is not used
+    inner_candidate: int | None = None  # Earth: the winner by residual, whose limb profiles were the
+    # ground's (limb_width_ratio above LimbOptions.edge_width_max), replaced by the accepted
+    # candidate beyond its edge (vision.frontend._outer_candidate); None: not replaced
+    inner_width_ratio: float = math.nan  # Earth: that candidate's limb_width_ratio
     second_arc: object = None  # Earth: the wrong-edge test's second arc (vision.edge_check.SecondArc) where
     # the fitted arc lies in the shadow, else None
     cone_alpha: float = math.nan  # Earth: median angle of the inlier rays about the vector [rad], the

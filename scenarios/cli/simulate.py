@@ -132,8 +132,15 @@ def run(args) -> int:
             bar.close()
     from scenarios.sim.truth import summary
     s = summary(flight.truth)
-    print(f"{out}: {sc.name}, seed {args.seed}, {flight.duration:.0f} s; apogee {s['apogee_m'] / 1e3:.1f} km at "
-          f"T+{s['apogee_t_s']:.0f} s; {len(flight.imu.t)} IMU samples, {len(flight.gps.t)} GPS fixes, "
+    print(f"{out}: {sc.name}, seed {args.seed}, {flight.duration:.0f} s; {_height_text(sc, s)}; "
+          f"{len(flight.imu.t)} IMU samples, {len(flight.gps.t)} GPS fixes, "
           f"{sum(len(c.t_ns) for c in flight.cameras)} camera frames ({'with images' if args.images else 'truth only'})"
           + (f", {len(vectors)} vectors (truth + vision error model)" if vectors is not None else ""))
     return 0
+
+
+def _height_text(sc, s: dict) -> str:
+    """The flight's height in the summary line: the apogee of a launch, the range of an orbit."""
+    if sc.orbit is None:
+        return f"apogee {s['apogee_m'] / 1e3:.1f} km at T+{s['apogee_t_s']:.0f} s"
+    return f"height {s['min_height_m'] / 1e3:.1f}-{s['apogee_m'] / 1e3:.1f} km"

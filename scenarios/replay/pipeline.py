@@ -314,7 +314,8 @@ def _replay(path, opt: ReplayOptions, rec) -> ReplayResult:
                 rec.begin([])
         sight = see(flight, init=_init_request(opt), targets=opt.targets, workers=opt.workers,
                     vision_config=opt.vision_config, vision_rate_hz=opt.vision_rate_hz, masks=opt.masks, hooks=hooks,
-                    wording=CLI, edge_state=tuning.edge_height.on)
+                    wording=CLI,
+                    edge_state=tuning.edge_height_edge if tuning.edge_height.on else False)
         vectors = sight.vectors
         start = sight.start or initialise(flight, sight, init=_init_request(opt), hooks=hooks, wording=CLI)
         gc.freeze()   # the vision results likewise

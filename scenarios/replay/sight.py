@@ -117,11 +117,12 @@ class ImagePlan:
 
 
 def image_plan(flight, targets, *, vision_config=None, vision_rate_hz=None, masks=None, workers=0,
-               wording: Wording = PYTHON, edge_state: bool = False) -> ImagePlan:
+               wording: Wording = PYTHON, edge_state: bool | str = False) -> ImagePlan:
     """The frames of ``flight``'s window (at most ``vision_rate_hz`` per camera) with their GPS
     position and height priors. ``edge_state``: the filter estimates each camera's edge height
     (``Tuning.edge_height`` on): the Earth vectors are given the height, with their sensitivity
-    (`vision.config.EdgeHeightOptions.filter_state`)."""
+    (`vision.config.EdgeHeightOptions.filter_state`); a string names the edge the state
+    describes (``EdgeHeightOptions.state_edge``, ``Tuning.edge_height_edge``; True: "limb")."""
     from scenarios.config.vision import load_vision_config
     from scenarios.replay.vision_worker import FrameJob
     inp, cam_numbers, a, b = flight.inputs, flight.cam_numbers, flight.t_from, flight.t_to
@@ -137,7 +138,8 @@ def image_plan(flight, targets, *, vision_config=None, vision_rate_hz=None, mask
     cfg = _targets_only(configs[cam_numbers[0]], targets) if cam_numbers else None
     if cfg is not None and edge_state:
         cfg = dataclasses.replace(cfg, earth=dataclasses.replace(
-            cfg.earth, edge=dataclasses.replace(cfg.earth.edge, filter_state=True)))
+            cfg.earth, edge=dataclasses.replace(cfg.earth.edge, filter_state=True,
+                                                state_edge=edge_state if isinstance(edge_state, str) else "limb")))
     plan = ImagePlan([], cams, cfg, {k: inp.cameras[k].images for k in cam_numbers}, cam_numbers,
                      payload_masks(inp, cam_numbers, masks or {}, wording), tuple(targets), workers)
     if not rows:

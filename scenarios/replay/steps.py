@@ -309,7 +309,7 @@ def check_vision(vision: str, w: Wording = PYTHON) -> None:
 
 def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int = 0, vision_config=None,
         vision_rate_hz: float | None = None, masks: dict | None = None, hooks: Hooks | None = None,
-        wording: Wording = PYTHON, edge_state: bool = False) -> Sight:
+        wording: Wording = PYTHON, edge_state: bool | str = False) -> Sight:
     """The camera vectors of ``flight``: the vision front end on its images, or the log's vectors.
 
     On images every frame of the window is processed with the attitude of the free-inertial INS
@@ -335,11 +335,12 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
         Camera number -> payload mask image file (overrides the log's).
     hooks : Hooks, optional
     wording : scenarios.replay.inputs.Wording
-    edge_state : bool
+    edge_state : bool or str
         The filter will estimate each camera's Earth edge height (``Tuning.edge_height`` on): the
         Earth vectors are then given the height, with their sensitivity to it and the arc's own
         height (`vision.config.EdgeHeightOptions.filter_state`, ``VectorData.dedge_c``); a log's
-        vectors keep theirs (DirectionVector version 2).
+        vectors keep theirs (DirectionVector version 2). A string names the edge the state
+        describes (``Tuning.edge_height_edge``: "limb", as True, or "threshold").
 
     Returns
     -------
@@ -371,7 +372,7 @@ def see(flight: Flight, *, init="auto", targets=("earth", "sun"), workers: int =
 
 
 def _see_images(flight, init, targets, workers, vision_config, vision_rate_hz, masks, hooks, w,
-                edge_state: bool = False) -> Sight:
+                edge_state: bool | str = False) -> Sight:
     from scenarios.replay import sight as S
     imu, notes, frames = flight.imu, [], []
     with hooks.in_stage("init"):

@@ -273,7 +273,7 @@ def summary(tr: Truth) -> dict:
     _, _, h = tr.geodetic()
     speed = np.linalg.norm(tr.v_e, axis=1)
     i_apo = int(np.argmax(h))
-    out = {"apogee_m": float(h[i_apo]), "apogee_t_s": float(tr.t[i_apo]),
+    out = {"apogee_m": float(h[i_apo]), "apogee_t_s": float(tr.t[i_apo]), "min_height_m": float(np.min(h)),
            "max_spin_dps": float(np.degrees(np.max(np.abs(tr.omega_ib_b[:, 0]))))}
     i60 = int(np.searchsorted(tr.t, 60.0))
     if i60 < len(tr.t):

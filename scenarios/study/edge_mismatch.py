@@ -12,7 +12,7 @@ overbound (003 eq. (37)) uses), and the estimated edge height against the height
 pixels the fit used (their tangent heights from the truth pose; minus the Sun-path shift on the
 limb edge, whose rays the front end turns to the overhead-Sun height).
 
-Run: ``python -m scenarios.study.edge_mismatch [--frames N] [--out FILE.json]``; the slow test
+Run: ``python -m scenarios.study.edge_mismatch [--frames N] [--span T0 T1] [--out FILE.json]``; the slow test
 tests/test_edge_mismatch.py runs the full study, a fast test a few frames.
 """
 from __future__ import annotations
@@ -28,8 +28,12 @@ import numpy as np
 
 from scenarios.atomic import atomic_write_text
 
-__all__ = ["NOMINAL_EDGE_M", "HEIGHTS_M", "PROFILES", "Case", "FrameOutcome", "atek_frames", "run_case",
+__all__ = ["CACHE_VERSION", "default_cache", "NOMINAL_EDGE_M", "HEIGHTS_M", "PROFILES", "Case", "FrameOutcome", "atek_frames", "run_case",
            "summarise", "run_study", "main"]
+
+#: version of the rendered-frame cache (`default_cache`): raised when the renderer's output changes
+#: (2: the twilight Sun path with the erf air mass, the payload drawn by the [render] table)
+CACHE_VERSION = 2
 
 #: effective height [m] of the default threshold edge on the default renderer (docs/vision.md)
 NOMINAL_EDGE_M = 45e3
@@ -189,20 +193,26 @@ def summarise(case: Case, outcomes: list[FrameOutcome]) -> dict:
                 from_arc=float(np.mean([o.from_arc for o in ok])) if ok else math.nan, paths=paths)
 
 
+def default_cache() -> Path:
+    """The rendered frames' cache directory: the temporary directory's
+    horizon-nav-edge-mismatch-<`CACHE_VERSION`>."""
+    return Path(tempfile.gettempdir()) / f"horizon-nav-edge-mismatch-{CACHE_VERSION}"
+
+
 def run_study(n_frames: int = 48, heights=HEIGHTS_M, profiles=tuple(PROFILES), config=None,
-              cache: Path | None = None) -> list[dict]:
-    """`summarise` of every (profile, height) case on ``n_frames`` ATEK frames with the front
-    end's defaults (or ``config``). Rendered frames are cached under ``cache`` (default: the
-    temporary directory's horizon-nav-edge-mismatch)."""
+              cache: Path | None = None, span_s: tuple = (64.0, 430.0)) -> list[dict]:
+    """`summarise` of every (profile, height) case on ``n_frames`` ATEK frames spread over
+    ``span_s`` = (t0, t1) [s after liftoff] (`atek_frames`) with the front end's defaults (or
+    ``config``). Rendered frames are cached under ``cache`` (default: `default_cache`)."""
     from scenarios.sim import render
     from vision import mask as vmask
     from vision.config import default_config
 
-    fl, frames = atek_frames(n_frames)
+    fl, frames = atek_frames(n_frames, *span_s)
     cam = fl.cameras[0].camera
     config = default_config(cam.fx) if config is None else config
     mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
-    cache = Path(tempfile.gettempdir()) / "horizon-nav-edge-mismatch" if cache is None else cache
+    cache = default_cache() if cache is None else cache
     cache.mkdir(parents=True, exist_ok=True)
     rows = []
     for p in profiles:
@@ -216,11 +226,16 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m scenarios.study.edge_mismatch",
                                  description="Edge-height model-mismatch study on rendered ATEK frames.")
     ap.add_argument("--frames", type=int, default=48, help="frames over the coast (default 48)")
+    ap.add_argument("--span", type=float, nargs=2, default=(64.0, 430.0), metavar=("T0", "T1"),
+                    help="frames spread over T0..T1 s after liftoff (default 64 430; the 40 held-out "
+                         "frames: --frames 40 --span 68 426)")
     ap.add_argument("--out", type=Path, help="write the per-case figures as JSON here")
     a = ap.parse_args(argv)
     if a.frames < 2:
         ap.error(f"--frames {a.frames}: expected at least 2")
-    rows = run_study(a.frames)
+    if not a.span[0] < a.span[1]:
+        ap.error(f"--span {a.span[0]:g} {a.span[1]:g}: expected T0 < T1")
+    rows = run_study(a.frames, span_s=tuple(a.span))
     print(f"{'case':<18}{'found':>7}{'wrong':>6}{'RMS deg':>9}{'max deg':>9}{'3sig in':>9}{'h est km':>10}"
           f"{'h true km':>10}{'dh rms km':>10}{'arc':>6}")
     for r in rows:

@@ -3,7 +3,8 @@
 for part of the pass) simulated, rendered with the limb's brightness edge at heights the front end
 does not assume, and replayed end to end (vision on the images, filter, smoother) with the front
 end's defaults plus the Moon and the tuning scenarios/library/tuning/pinhole-orbit.toml (the edge
-height a filter state, `[states.edge_height] mode = "E"`).
+height a filter state, `[states.edge_height] mode = "E"`, describing the threshold edge: `edge =
+"threshold"`, docs/vision.md "Which edge the state describes").
 
 The renderer's limb air is lifted by ``height - NOMINAL_EDGE_M`` (`edge_mismatch.Case`,
 `scenarios.sim.render.RenderOptions.limb_shift_m`); a second brightness profile (thin-6km) changes

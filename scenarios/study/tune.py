@@ -9,8 +9,9 @@ The measurement set is fixed
 ----------------------------
 The chi-square gate depends on the parameters: a measurement near the gate enters or leaves the
 sum as they change, and the objective jumps. Each optimisation therefore runs on a fixed set,
-with the gate switched off: the measurements the gate accepts at the starting tuning (its other
-measurements are removed from the inputs). After it converges the gate is applied again at the
+with the gate switched off: the measurements the gate of the likelihood's filter accepts at the
+starting tuning (the ones it rejects are removed from the inputs, so that the replay's gate and
+the likelihood see the same measurements). After it converges the gate is applied again at the
 estimate; if the set changed, the optimisation is repeated on the new set (at most
 ``max_rounds`` times). The estimate is thus consistent with its own gate, and within each
 optimisation the objective is smooth.
@@ -21,7 +22,9 @@ The prediction-error decomposition is the likelihood of the measurements only wh
 innovations are white, i.e. for the optimal filter of the model. A Schmidt filter's considered
 errors are never corrected, so its innovations are correlated in time. Each evaluation therefore
 runs the filter with every considered ("C") group estimated (:func:`estimated_everywhere`); the
-tuning written keeps the modes of the base tuning.
+tuning written keeps the modes of the base tuning, except the Gauss-Markov vector states when
+their parameters were estimated (:func:`gm_mode_written`): a Schmidt filter keeps their
+stationary covariance in every innovation covariance, which the likelihood does not fix.
 
 The optimiser
 -------------
@@ -76,6 +79,7 @@ import numpy as np
 from nav.error_state import TRANSITION_GROUPS
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
 from nav.navigator import GpsData, VectorData, run
+from nav.schmidt import GATED, REASONS
 from nav.tuning import G0, Tuning
 
 log = logging.getLogger(__name__)
@@ -98,6 +102,7 @@ RIDGE = 1.0            #: added to the information in the step (not in the stand
 #: at 0.999: 10.8 / 2)
 LR_GAP = 5.4
 VECTOR_KINDS = ("hor", "sun", "moon")
+GATE_REASON = REASONS[GATED]   #: an innovation's reason when the chi-square gate rejected it
 AIDING = {"gps_pos", "gps_vel", "hor", "sun", "moon"}
 RAD_S_TO_DEG_RTH = math.degrees(1.0) * 60.0   #: rad/sqrt(s) -> deg/sqrt(h)
 
@@ -249,6 +254,9 @@ class TuneResult:
     n_measurements: int
     rounds: int
     warnings: list = field(default_factory=list)
+    #: settings of the base the tuning written changes, ``[(table, key, value, why)]``
+    #: (:func:`gm_mode_written`)
+    settings: list = field(default_factory=list)
 
     @property
     def seconds_per_evaluation(self) -> float:
@@ -264,6 +272,7 @@ class TuneResult:
                      f"{self.seconds_per_evaluation:.2f} s each, {self.seconds:.0f} s in all"
                      + ("" if self.converged else "; NOT CONVERGED: the best point is reported"))
         lines += [f"warning: {w}" for w in self.warnings]
+        lines += [f"[{tb}] {key} = {val!r} in the tuning written: {why}" for tb, key, val, why in self.settings]
         return "\n".join(lines)
 
 
@@ -281,13 +290,20 @@ class Objective:
         self.one_sided = {}
         self.flat_se = {}   #: name -> standard error when the parameter was found flat and fixed
 
-    def tuning(self, theta, *, gate: bool = False) -> Tuning:
+    def written(self, theta) -> Tuning:
+        """The base tuning with the parameters at ``theta``: the modes and the gate as written."""
         t = self.base
         for p, th in zip(self.params, theta):
             t = p.set(t, float(math.exp(th)))
-        # gate off (the set is fixed) and no divergence recovery (it follows the gate); the
-        # considered groups estimated (the optimal filter of the model, whose innovations are white)
-        return t if gate else replace(estimated_everywhere(t), gate_probability=1.0, recovery_gated_fixes=0)
+        return t
+
+    def tuning(self, theta, *, gate: bool = False) -> Tuning:
+        """The filter of the likelihood at ``theta``: the considered groups estimated (the optimal
+        filter of the model, whose innovations are white), no divergence recovery (it follows the
+        gate), and the gate off (the set is fixed) unless ``gate``, which :meth:`fix_set` uses to
+        choose the set this same filter accepts."""
+        t = replace(estimated_everywhere(self.written(theta)), recovery_gated_fixes=0)
+        return t if gate else replace(t, gate_probability=1.0)
 
     def run(self, tuning: Tuning, gps=None, vectors=None):
         inp = self.inputs
@@ -305,7 +321,7 @@ class Objective:
         """The measurements the gate accepts at ``theta`` become the fixed set (the others are
         removed from the inputs). Returns how many blocks changed against the previous set."""
         res = self.run(self.tuning(theta, gate=True), self.inputs.gps, self.inputs.vectors)
-        gated = {(i.t_ns, i.kind, i.camera) for i in res.innovations if not i.accepted and i.reason == "gated"}
+        gated = {(i.t_ns, i.kind, i.camera) for i in res.innovations if not i.accepted and i.reason == GATE_REASON}
         self.gps, self.vectors = _without(self.inputs.gps, self.inputs.vectors, gated)
         keys = {(i.t_ns, i.kind, i.camera) for i in res.innovations if i.accepted}
         changed = len(keys ^ self.keys) if self.keys is not None else len(keys)
@@ -573,13 +589,41 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
     tuned = base
     for e in ests:
         tuned = PARAMS[e.name].set(tuned, e.value) if e.estimated else tuned
+    settings = gm_mode_written(base, ests)
+    if settings:
+        tuned = replace(tuned, vector_gm_mode="E")
     warn += [f"{e.name} = {e.value * e.to_unit:.4g} {e.unit} has no standard error: {e.reason}"
              for e in ests if e.at_bound]
     n_meas = len(obj.keys) if obj.keys is not None else 0
     for w in warn:
         warnings.warn(w, RuntimeWarning, stacklevel=2)
     return TuneResult(ests, tuned, f_prior, f, obj.evaluations + obj0.evaluations,
-                      time.perf_counter() - t_start, converged, n_meas, rounds, warn)
+                      time.perf_counter() - t_start, converged, n_meas, rounds, warn, settings)
+
+
+#: the parameters of the Gauss-Markov vector errors (their stationary sigma and correlation time)
+GM_PARAMS = ("vector_cov_scale_hor", "vector_cov_scale_sun", "vector_cov_scale_moon", "correlation_time")
+
+
+def gm_mode_written(base: Tuning, ests) -> list:
+    """``[("vectors", "gm_mode", "E", why)]`` when the base considers the Gauss-Markov vector
+    states and the flight estimated one of their parameters, else ``[]``.
+
+    The estimate is the maximum of the likelihood of the filter that estimates them: its innovation
+    covariance holds the states' covariance after their estimation, which a flight fixes through
+    the increments of the process (driving noise ``2 k^2 P_c / T_c``, 003 eq. (45)). A Schmidt
+    filter that considers them keeps their stationary covariance ``k^2 P_c`` in every S; when T_c
+    is not short against the flight, the likelihood is flat along ``k^2 / T_c`` = const (the
+    errors are biases with one draw per camera and target), so that covariance is not a property
+    of the flight and the considered filter's NIS is not set by the estimate (docs/tuning.md
+    "The filter the estimate is for"). The tuning written therefore estimates them."""
+    if base.vector_gm_mode != "C":
+        return []
+    done = [e.name for e in ests if e.name in GM_PARAMS and e.estimated]
+    if not done:
+        return []
+    return [("vectors", "gm_mode", "E", f"estimated: the likelihood of {', '.join(done)} is that of the filter "
+                                         f"estimating the Gauss-Markov vector states (base: considered)")]
 
 
 def _one_sided(obj: Objective, theta, f: float, weak, mapper=map) -> np.ndarray:
@@ -625,7 +669,7 @@ def _refit(obj: Objective, theta, weak, max_iter, mapper):
     """Re-estimate the identified parameters with the weak ones at their prior."""
     keep = ~weak
     sub = Objective(obj.inputs, obj.base, [p for p, k in zip(obj.params, keep) if not k], obj.progress)
-    base_w = sub.tuning(sub.theta0, gate=True)   # weak ones at their prior (the base's values)
+    base_w = sub.written(sub.theta0)   # weak ones at their prior (the base's values)
     sub = Objective(obj.inputs, base_w, [p for p, k in zip(obj.params, keep) if k], obj.progress)
     sub.gps, sub.vectors, sub.keys = obj.gps, obj.vectors, obj.keys
     th, f, iset, info_k, _, conv = optimise(sub, theta[keep], max_iter=max_iter, mapper=mapper)
@@ -706,6 +750,9 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
         else:
             tables.setdefault(tb, {}).update(kv)
     lines = [f"# {ln}" if ln else "#" for ln in header.splitlines()]
+    for tb, key, val, why in result.settings:
+        tables.setdefault(tb, {})[key] = val
+        comments[(tb, key)] = why
     for e in result.estimates:
         if e.at_bound:
             for tb, key, val in PARAMS[e.name].entries(e.value):
