@@ -366,7 +366,7 @@ GYRO_MISALIGNMENT_SPLIT_MRAD = 1.4142  # 2 mrad / sqrt(2), see matched_tuning
 def matched_tuning(base: Tuning | None = None) -> Tuning:
     """Table 3 with the error models of the simulated sensors instead of 003's flight tuning:
     accelerometer 0.05 mg/sqrt(Hz); gyro 0.05 deg/sqrt(h) plus the white equivalent of the atek
-    gyro's 0.03 deg/s quantisation on the coast's slowly turning axes (0.43-0.65 deg/sqrt(h),
+    gyro's 0.03 deg/s quantisation on the coast's slowly turning axes (0.38-0.58 deg/sqrt(h),
     scenarios/library/tuning/atek-sim.toml derives it): 0.5 deg/sqrt(h) in all; the simulator's six
     2 mrad axis-misalignment terms as their rotation and their non-orthogonality, 2 / sqrt(2) mrad
     each (nav/imu_errors.py), both considered; vector white noise as simulated."""
