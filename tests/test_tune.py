@@ -10,7 +10,7 @@ import pytest
 
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood
 from nav.navigator import GpsData, VectorData
-from nav.tuning import Tuning, tuning_from_toml
+from nav.tuning import StateGroupTuning, Tuning, tuning_from_toml
 from nav.updates import Innovation
 from scenarios.study.tune import PARAMS, Estimate, TuneInputs, TuneResult, available, tune, tuning_toml
 from tests.test_navigator import flight_inputs, matched_tuning, truth_init
@@ -137,8 +137,12 @@ def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float, *, gm_d
 
 
 def base_tuning(white: float = PRIOR_WHITE) -> Tuning:
-    """The simulated IMU's matched tuning with the prior vector white noise."""
-    return matched_tuning().with_(vector_white=white)
+    """The simulated IMU's matched tuning with the prior vector white noise, its gyro as one white
+    noise at the quantisation's 5-100 s level of body y and z (0.5 deg/sqrt(h)) instead of
+    matched_tuning's white and Gauss-Markov split: the draws that redraw the IMU have no
+    quantisation and a white gyro noise drawn around this prior, and the tuned parameters are
+    ones of that white-noise model."""
+    return matched_tuning().with_(vector_white=white, gyro_white=0.5 * DEG_RTH, gyro_gm=StateGroupTuning("off", 0.0))
 
 
 def check_recovery(res, truth: dict):
@@ -271,7 +275,6 @@ def test_iterated_vector_update_reaches_the_map_point(coast):
     pull (measured 0.007 deg); the test asks a factor 3."""
     from nav.navigator import ImuData, InitialState, run
     from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
-    from nav.tuning import StateGroupTuning
     from tests.test_navigator import attitude_errors
     fi = flight_inputs(coast, 60.0, seed=3, noise=False)
     i0 = truth_init(fi)
@@ -341,7 +344,8 @@ def test_tuned_filter_nis_means_inside_their_bands():
     fi = flight_inputs(fl, 60.0, seed=3, vec_sigma=math.radians(0.03), white=math.radians(0.01), tc=2000.0)
     fi.vectors.P_c *= (0.12 / 0.03) ** 2
     inp = TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal)
-    base = matched_tuning().with_(vector_white=math.radians(0.02), gyro_white=0.05 * DEG_RTH)
+    base = matched_tuning().with_(vector_white=math.radians(0.02), gyro_white=0.05 * DEG_RTH,
+                                  gyro_gm=StateGroupTuning("off", 0.0))   # no quantisation in this IMU
     res = tune(inp, base, ["vector_white_hor", "vector_white_sun", "vector_cov_scale_hor", "vector_cov_scale_sun",
                            "correlation_time"])
     print(res.report())
@@ -390,7 +394,6 @@ def test_gyro_gm_recovery():
     99.7 % bound; measured |error| / SE <= 1.7); the sigma, which 24 correlation times pin to
     9-11 % (1 SE), is within 30 % of the truth (measured 2-6 %). With the state off both
     parameters are left out with the reason."""
-    from nav.tuning import StateGroupTuning
     from scenarios.sim.scenario import load_scenario
     from scenarios.sim.simulate import simulate_flight
     sig, tau = 30.0 * DEG_H, 10.0
