@@ -63,6 +63,41 @@ def test_tuning_toml_keys_round_trip():
         assert p.get(t) == pytest.approx(1.7 * p.get(Tuning()), rel=1e-5), name
 
 
+def test_per_camera_cov_scale_keys():
+    """``[vectors] cov_scale_<target>_camera_<k>``: the camera's factor replaces the target's for
+    that camera (index k - 1) only; a written tuning with per-camera estimates reads back; a
+    camera number that is not an integer >= 1, a zero scale or an unknown target is an error
+    naming the key."""
+    from scenarios.study.tune import param
+    t = tuning_from_toml("[vectors]\ncov_scale_hor = 2.0\ncov_scale_hor_camera_2 = 0.6\n")
+    assert t.vector_cov_scale_for("hor", 1) == 0.6 and t.vector_cov_scale_for("hor", 0) == 2.0
+    assert t.vector_cov_scale_for("hor") == 2.0 and t.vector_cov_scale_for("sun", 1) == 1.0
+    # the filter replays only the log's camera 2: its index 0 takes camera 2's factor
+    assert t.for_cameras([2]).vector_cov_scale_for("hor", 0) == 0.6 and t.for_cameras([1, 2]) is t
+    for bad, key in (("cov_scale_hor_camera_0 = 1.0", "cov_scale_hor_camera_0"),
+                     ("cov_scale_hor_camera_x = 1.0", "cov_scale_hor_camera_x"),
+                     ("cov_scale_sun_camera_1 = 0.0", "cov_scale_sun_camera_1"),
+                     ("cov_scale_hor_camera_1 = -1.0", "cov_scale_hor_camera_1"),
+                     ("cov_scale_mars_camera_1 = 1.0", "cov_scale_mars_camera_1")):
+        with pytest.raises(ValueError, match=key):
+            tuning_from_toml(f"[vectors]\n{bad}\n")
+    names = ["vector_cov_scale_hor_camera_1", "vector_cov_scale_hor_camera_2", "vector_cov_scale_sun_camera_1"]
+    ests = [Estimate(n, 1.0, v, 0.05, True) for n, v in zip(names, (0.8, 0.45, 1.7))]
+    back = tuning_from_toml(tuning_toml(TuneResult(ests, Tuning(), 0.0, 0.0, 1, 1.0, True, 1, 1),
+                                        {"vectors": {"cov_scale_hor": 2.0}}))
+    assert [back.vector_cov_scale_for(tg, c) for tg, c in (("hor", 0), ("hor", 1), ("sun", 0), ("sun", 1))] == \
+        pytest.approx([0.8, 0.45, 1.7, 1.0], rel=1e-5)
+    for n, v in zip(names, (0.8, 0.45, 1.7)):
+        assert param(n).get(back) == pytest.approx(v, rel=1e-5)
+    with pytest.raises(ValueError, match="camera 3 is not replayed"):
+        param("vector_cov_scale_hor_camera_3", (1, 2))
+    # a target on two cameras is estimated per camera (named by the log's numbers), on one per target
+    params, why = available(["vector_cov_scale_hor", "vector_cov_scale_sun", "vector_cov_scale_moon"], Tuning(),
+                            {"hor", "sun", ("hor", 0), ("hor", 1), ("sun", 1)}, (1, 3))
+    assert [p.name for p in params] == ["vector_cov_scale_hor_camera_1", "vector_cov_scale_hor_camera_3",
+                                        "vector_cov_scale_sun"] and list(why) == ["vector_cov_scale_moon"]
+
+
 # ------------------------------------------------------------------------------------------------
 # recovery on simulated coasts
 # ------------------------------------------------------------------------------------------------
@@ -354,6 +389,55 @@ def test_tuned_filter_nis_means_inside_their_bands():
         v = np.array([i.nis for i in out.innovations if i.accepted and (i.kind, i.camera) == (kind, cam)])
         lo, hi = chi2.ppf(0.025, 2 * v.size) / v.size, chi2.ppf(0.975, 2 * v.size) / v.size
         assert lo < v.mean() < hi, (kind, cam, v.mean(), lo, hi, res.report())
+
+
+def _nis_means(inp, tuning) -> dict:
+    """(kind, camera) -> (mean NIS of the accepted vectors, their count)."""
+    from nav.navigator import run
+    out = run(inp.imu, inp.init, tuning, gps=inp.gps, vectors=inp.vectors, R_bc=inp.R_bc, store_for_smoother=False)
+    nis: dict = {}
+    for i in out.innovations:
+        if i.kind in ("hor", "sun") and i.accepted:
+            nis.setdefault((i.kind, i.camera), []).append(i.nis)
+    return {k: (float(np.mean(v)), len(v)) for k, v in nis.items()}
+
+
+def test_per_camera_pc_scale_recovered(coast):
+    """Camera 2's P_c over-reports its Gauss-Markov vector error by 1/0.4 (camera 1's P_c is
+    right; white noise known): with the horizon on both cameras, ``tune`` estimates the P_c
+    scale per camera, each within 3 of its standard errors of the truth (1 and 0.4), and the
+    tuned filter's NIS mean per camera and target is inside the 95 % band of the mean of N
+    chi-square(2) values, chi2(2N)/N (seed 21: 1.96 / 1.89 horizon, 1.95 Sun against 1.68..2.34);
+    one scale shared by the two cameras leaves both horizon NIS means outside it, camera 2's
+    below (its S too large) and camera 1's above (2.83 / 1.54)."""
+    from scipy.stats import chi2
+    white = 0.0002
+    inp = draw(coast, 21, white, 1.0, 1.0)
+    cam = np.asarray(inp.vectors.camera)
+    inp.vectors.P_c[cam == 1] /= 0.4 ** 2
+    base = base_tuning(white)
+    names = ["vector_cov_scale_hor", "vector_cov_scale_sun"]
+    res = tune(inp, base, names)
+    print(res.report())
+    est = res.by_name()
+    assert {"vector_cov_scale_hor_camera_1", "vector_cov_scale_hor_camera_2"} <= set(est)
+    tg = np.asarray(inp.vectors.target)
+    for n, e in est.items():
+        if e.estimated:   # a per-target scale: its target is on one camera only, whose truth it is
+            on2 = n.endswith("_camera_2") or (not n.endswith("_camera_1") and set(cam[tg == n[-3:]]) == {1})
+            truth = 0.4 if on2 else 1.0
+            assert abs(math.log(e.value / truth)) < 3 * e.se_log, (n, e.value, e.se_log)
+    band = lambda n: (chi2.ppf(0.025, 2 * n) / n, chi2.ppf(0.975, 2 * n) / n)   # noqa: E731
+    own = _nis_means(inp, res.tuning)
+    for k, (m, n) in own.items():
+        lo, hi = band(n)
+        assert lo < m < hi, (k, m, lo, hi, res.report())
+    shared = tune(inp, base, names, cameras=False)
+    print(shared.report())
+    one = _nis_means(inp, shared.tuning)
+    print(f"NIS means per camera: {own}; shared: {one}")
+    (m1, n1), (m2, n2) = one[("hor", 0)], one[("hor", 1)]
+    assert m1 > band(n1)[1] and m2 < band(n2)[0]
 
 
 def test_cli_tune(vlog, tmp_path, capsys):
