@@ -21,6 +21,8 @@ def add_arguments(p) -> None:
                    help=f"comma-separated parameters to estimate (default: {','.join(DEFAULT_PARAMS)}; "
                         f"known: {','.join(sorted(PARAMS))}, and vector_cov_scale_<target>_camera_<k>; "
                         f"a target's P_c scale is estimated per camera when two or more cameras see it)")
+    p.add_argument("--per-target-scales", action="store_true",
+                   help="one P_c scale per target even where two or more cameras see it (default: one per camera)")
     p.add_argument("--tuning", default=None, help="base tuning TOML: the prior and the other settings (default: 003 table 3)")
     p.add_argument("--from", dest="t_from", default=None, help="start: T+<s> or UTC ISO (default: log start)")
     p.add_argument("--to", dest="t_to", default=None, help="end: T+<s> or UTC ISO (default: log end)")
@@ -107,7 +109,8 @@ def run(args) -> int:
     with executor_mapper(args.jobs, client=client) as mapper, \
             tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
         try:
-            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar, mapper=mapper)
+            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar, mapper=mapper,
+                       cameras=not args.per_target_scales)
         except ValueError as e:
             raise UserError(f"--params: {e}") from None
     print(res.report())
