@@ -463,6 +463,8 @@ def test_cli_tune(vlog, tmp_path, capsys):
     se = float(e.split("+-")[1].split("%")[0]) / 100
     assert abs(math.log(t.gps_noise_scale)) < 4 * se
     assert main(["tune", str(vlog), "--params", "nonsense", "-o", str(out), "--quiet"]) == 2
+    assert main(["tune", str(vlog), "--params", "vector_cov_scale_hor_camera_0", "-o", str(out), "--quiet"]) == 2
+    assert "unknown parameter 'vector_cov_scale_hor_camera_0'" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------
