@@ -89,6 +89,14 @@ def test_per_camera_cov_scale_keys():
         pytest.approx([0.8, 0.45, 1.7, 1.0], rel=1e-5)
     for n, v in zip(names, (0.8, 0.45, 1.7)):
         assert param(n).get(back) == pytest.approx(v, rel=1e-5)
+    # the per-camera parameters travel to the executor's processes by name and camera numbers
+    import pickle
+    from scenarios.study.tune import Objective
+    obj = Objective(TuneInputs(None, None, None, None, [], cam_numbers=(1, 3)), back.for_cameras([1, 2]),
+                    [param("vector_cov_scale_hor_camera_3", (1, 3))])
+    remote = pickle.loads(pickle.dumps(obj))
+    assert remote.params[0].name == "vector_cov_scale_hor_camera_3"
+    assert remote.params[0].get(remote.base.with_(vector_cov_scale_by_camera=(((1, "hor"), 0.3),))) == 0.3
     with pytest.raises(ValueError, match="camera 3 is not replayed"):
         param("vector_cov_scale_hor_camera_3", (1, 2))
     # a target on two cameras is estimated per camera (named by the log's numbers), on one per target
