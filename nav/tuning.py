@@ -13,7 +13,8 @@ default, an unknown table or key is an error naming it::
                 and edge = "limb" | "threshold";
                 [states.gyro_gm] takes correlation_time_s, > 0)
     [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg,
-                white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon)
+                white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon),
+                cov_scale_<target>_camera_<k>  (k: the log's camera number, /camera_<k>, 1-based)
     [gps]       noise_scale
     [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
     [filter]    max_cov_interval_s, gate_probability, first_update_iterations,
@@ -29,6 +30,7 @@ rad/s, dimensionless).
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, replace
 
@@ -120,6 +122,11 @@ class Tuning:
         Per target, a factor on the 1-sigma of the vision's covariance P_c (003 eq. (33)): P_c is
         multiplied by its square wherever it enters (the Gauss-Markov stationary covariance of
         eqs. (44)-(45), or R with the Gauss-Markov states off); default 1 (:meth:`vector_cov_scale_for`).
+    vector_cov_scale_by_camera : tuple of ((int, str), float)
+        Per camera and target, a factor that replaces the target's for that camera's vectors:
+        ``((camera_index, target), value)`` with the filter's camera index (0-based; TOML
+        ``cov_scale_<target>_camera_<k>`` with the log's camera number k = index + 1 when every
+        camera is replayed, :meth:`for_cameras` otherwise).
     gps_noise_scale : float
         Factor on the 1-sigma of every GPS fix's position and velocity covariance (R multiplied
         by its square); default 1 (the receiver's covariances as logged).
@@ -191,6 +198,7 @@ class Tuning:
     gm_default_sigma: float = math.radians(0.1)
     vector_white_by_target: tuple = ()
     vector_cov_scale_by_target: tuple = ()
+    vector_cov_scale_by_camera: tuple = ()
     gps_noise_scale: float = 1.0
     first_update_iterations: int = 0
     first_update_att_sigma: float = math.radians(0.3)
@@ -221,9 +229,22 @@ class Tuning:
         """White noise (1 sigma, unit-vector units) of ``target``'s vectors."""
         return dict(self.vector_white_by_target).get(target, self.vector_white)
 
-    def vector_cov_scale_for(self, target: str) -> float:
-        """Factor on the 1-sigma of ``target``'s vision covariance P_c."""
-        return dict(self.vector_cov_scale_by_target).get(target, 1.0)
+    def vector_cov_scale_for(self, target: str, camera: int | None = None) -> float:
+        """Factor on the 1-sigma of ``target``'s vision covariance P_c on camera index ``camera``:
+        the camera's factor if the tuning has one, else the target's, else 1."""
+        own = dict(self.vector_cov_scale_by_camera).get((camera, target)) if camera is not None else None
+        return own if own is not None else dict(self.vector_cov_scale_by_target).get(target, 1.0)
+
+    def for_cameras(self, numbers) -> "Tuning":
+        """The tuning of a filter whose camera indices are the log's cameras ``numbers`` (1-based,
+        in index order): the per-camera factors, keyed by ``number - 1``, re-keyed by the camera's
+        position in ``numbers`` (those of cameras not in it dropped)."""
+        numbers = [int(k) for k in numbers]
+        if not self.vector_cov_scale_by_camera or numbers == list(range(1, len(numbers) + 1)):
+            return self
+        pairs = tuple(((numbers.index(c + 1), tg), v) for (c, tg), v in self.vector_cov_scale_by_camera
+                      if c + 1 in numbers)
+        return replace(self, vector_cov_scale_by_camera=tuple(sorted(pairs)))
 
 
 def _group(d: dict, key: str, unit_key: str, scale: float, default: StateGroupTuning) -> StateGroupTuning:
@@ -289,6 +310,8 @@ _NONZERO = {"correlation_time_s", "max_cov_interval_s", "noise_scale"}
 VECTOR_TARGETS = ("hor", "sun", "moon")
 #: per-target keys of [vectors]: key prefix -> Tuning field of (target, value) pairs
 _PER_TARGET = {"white_noise_": "vector_white_by_target", "cov_scale_": "vector_cov_scale_by_target"}
+#: ``[vectors] cov_scale_<target>_camera_<k>``: the per-camera P_c scale (k checked by _per_camera)
+_PER_CAMERA = re.compile(r"cov_scale_(" + "|".join(VECTOR_TARGETS) + r")_camera_(.*)")
 _OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE),
                "vectors": {"gm_mode", "targets"} | {p + t for p in _PER_TARGET for t in VECTOR_TARGETS},
                "initial": set(), "filter": {"first_update_iterations", "misalignment_reset", "second_order_noise"}, "gps": set(),
@@ -301,9 +324,12 @@ def _table(d: dict, name: str) -> dict:
     if not isinstance(t, dict):
         raise ValueError(f"tuning [{name}]: expected a table")
     unknown = set(t) - set(_SCALARS[name]) - _OTHER_KEYS[name]
+    if name == "vectors":
+        unknown = {k for k in unknown if not _PER_CAMERA.fullmatch(k)}
     if unknown:
+        extra = ["cov_scale_<target>_camera_<k>"] if name == "vectors" else []
         raise ValueError(f"tuning [{name}]: unknown key {sorted(unknown)[0]!r}; expected one of "
-                         f"{sorted(set(_SCALARS[name]) | _OTHER_KEYS[name])}")
+                         f"{sorted(set(_SCALARS[name]) | _OTHER_KEYS[name]) + extra}")
     return t
 
 
@@ -347,6 +373,25 @@ def _per_target(vec: dict, kw: dict) -> None:
                 pairs.append((t, x))
         if pairs:
             kw[field_] = tuple(pairs)
+
+
+def _per_camera(vec: dict, kw: dict) -> None:
+    """``[vectors] cov_scale_<target>_camera_<k>`` (k an integer >= 1, the scale > 0) into
+    ``vector_cov_scale_by_camera`` keyed by camera index k - 1."""
+    pairs = []
+    for key, v in vec.items():
+        m = _PER_CAMERA.fullmatch(key)
+        if not m:
+            continue
+        k = m.group(2)
+        if not (k.isascii() and k.isdigit()) or int(k) < 1:
+            raise ValueError(f"tuning [vectors] {key}: expected a camera number >= 1 after '_camera_', got {k!r}")
+        x = _positive(v, f"[vectors] {key}")
+        if x == 0:
+            raise ValueError(f"tuning [vectors] {key}: must be > 0")
+        pairs.append(((int(k) - 1, m.group(1)), x))
+    if pairs:
+        kw["vector_cov_scale_by_camera"] = tuple(sorted(pairs))
 
 
 def _count(table: str, key: str, n) -> int:
@@ -414,6 +459,7 @@ def tuning_from_dict(d: dict) -> Tuning:
     _imu_white(d.get("imu", {}), kw)
     _vector_choices(d.get("vectors", {}), kw)
     _per_target(d.get("vectors", {}), kw)
+    _per_camera(d.get("vectors", {}), kw)
     if "first_update_iterations" in d.get("filter", {}):
         kw["first_update_iterations"] = _count("filter", "first_update_iterations",
                                                d["filter"]["first_update_iterations"])

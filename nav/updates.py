@@ -320,7 +320,7 @@ class CameraVectors:
     vector (:mod:`nav.measurements`; kind = the target, camera = its index), with the clock offset
     and Gauss-Markov columns where the layout has them. The noise is the target's white noise
     (:meth:`nav.tuning.Tuning.vector_white_for`) and the vision's P_c times the square of the
-    target's covariance scale (:meth:`nav.tuning.Tuning.vector_cov_scale_for`). Input problems:
+    camera's and target's covariance scale (:meth:`nav.tuning.Tuning.vector_cov_scale_for`). Input problems:
     unknown camera, target not modelled, non-finite vector,
     :func:`nav.measurements.vector_covariance_problem`."""
     name = "vec"
@@ -332,7 +332,7 @@ class CameraVectors:
         self.e_c, self.P_c = vec.e_c, vec.P_c
         self.layout, self.tuning, self.n_cam = layout, tuning, n_cam
         self.white2 = {t: tuning.vector_white_for(t) ** 2 for t in set(self.target)}
-        self.pc_scale2 = {t: tuning.vector_cov_scale_for(t) ** 2 for t in set(self.target)}
+        self.pc_scale2 = {(c, t): tuning.vector_cov_scale_for(t, c) ** 2 for c, t in set(zip(self.camera, self.target))}
         self.problems = vector_problems(vec)
         dedge, ref = getattr(vec, "dedge_c", None), getattr(vec, "edge_ref_m", None)
         self.edge = None
@@ -371,7 +371,7 @@ class CameraVectors:
             return None, None, "non-finite vector"
         e_c = e_c / nrm
         bad = self.problems[j] if self.problems is not None else vector_covariance_problem(P_c, e_c)
-        k2 = self.pc_scale2[self.target[j]]
+        k2 = self.pc_scale2[(self.camera[j], self.target[j])]
         return e_c, (P_c * k2 if k2 != 1.0 else P_c), bad
 
     def fill(self, j: int, t_m: int, at, st, stack: EpochStack) -> None:

@@ -18,7 +18,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import re
+
 import cv2
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pcsv
@@ -101,7 +104,10 @@ def test_round_trip_tables_and_image_folder_are_exact(flight):
     # report: files written; the spin saturates gyro x at 1000 deg/s (range, quantised to 0.03)
     assert (d / "report" / "report.json").exists() and (d / "report" / "report.png").stat().st_size > 10_000
     sat = [f for f in res.report.findings if f.check == "saturation"]
-    assert len(sat) == 1 and "gyro x" in sat[0].message and "999.99 deg/s" in sat[0].message
+    assert len(sat) == 1 and "gyro x" in sat[0].message, [f.message for f in sat]
+    # the clipped value is the 1000 deg/s range on the 0.03 deg/s grid: within one quantum of it
+    top = float(re.search(r"= ([0-9.]+) deg/s", sat[0].message).group(1))
+    assert 1000.0 - 0.03 <= top <= 1000.0, top
     assert not res.report.errors
 
 
@@ -557,3 +563,30 @@ def test_reimported_flight_replays_to_the_same_solution(flight, tmp_path):
     print(f"smallest 1-sigma attitude bound of the run: {sigma_min:.3f} deg")
     assert worst < 3 * sigma_min
     assert np.abs(a.nav.x_e - c.nav.x_e).max() < 0.5
+
+
+def test_saturation_check_tells_clipping_from_a_quantised_peak():
+    """A 20 Hz rate quantised to 0.03 deg/s: a slow peak (0.011 deg/s^2 curvature scale, the atek
+    coast's body y) holds its top value for seconds without clipping, while the same grid with a
+    fast rise cut at a range is a clipped flat top. Only the second is reported. A rate that steps
+    to a plateau below the floor (a tip-off) is not a range either."""
+    from scenarios.importer.validate import Report, check_saturation
+    q, fs = 0.03, 20.0
+    t = np.arange(0, 60, 1 / fs)
+    slow = 4.6 - 0.5 * 0.011 * (t - 30) ** 2 / 30          # peak 4.6 deg/s, changes ~1e-4 deg/s per sample at the top
+    fast = np.clip(40.0 * np.sin(2 * np.pi * t / 20), -25.0, 25.0)  # 40 deg/s sine cut at +-25 deg/s
+    for sig, expect in ((slow, 0), (fast, 1)):
+        x = np.round((np.c_[sig, sig, sig] - 0.013) / q) * q + 0.013   # a grid off zero, as a real converter's
+        rep = Report()
+        check_saturation(rep, "imu", "gyro", np.radians(x), fs, None, "deg/s", np.radians(1.0))
+        assert len(rep.findings) == 3 * expect, [f.message for f in rep.findings]
+    step = np.where(t < 30, 0.0, np.where(t < 31, 4.57, np.maximum(4.57 - 1.5 * (t - 31), 0.0)))  # steps, holds 1 s, falls
+    x = np.round((np.c_[step, step, step] - 0.013) / q) * q + 0.013
+    rep = Report()
+    check_saturation(rep, "imu", "gyro", np.radians(x), fs, None, "deg/s", np.radians(1.0), floor=0.5)
+    assert rep.findings == []
+    check_saturation(rep, "imu", "gyro", np.radians(x), fs, None, "deg/s", np.radians(1.0), floor=0.0)
+    assert len(rep.findings) == 3      # without the floor its shape is a clipped one
+    # the slow peak does hold: its top value lasts longer than the check's 0.25 s run
+    xs = np.round((slow - 0.013) / q) * q + 0.013
+    assert (xs == xs.max()).sum() > 5

@@ -19,7 +19,10 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", default=None, help="tuning TOML to write (required unless --report-only)")
     p.add_argument("--params", default=None,
                    help=f"comma-separated parameters to estimate (default: {','.join(DEFAULT_PARAMS)}; "
-                        f"known: {','.join(sorted(PARAMS))})")
+                        f"known: {','.join(sorted(PARAMS))}, and vector_cov_scale_<target>_camera_<k>; "
+                        f"a target's P_c scale is estimated per camera when two or more cameras see it)")
+    p.add_argument("--per-target-scales", action="store_true",
+                   help="one P_c scale per target even where two or more cameras see it (default: one per camera)")
     p.add_argument("--tuning", default=None, help="base tuning TOML: the prior and the other settings (default: 003 table 3)")
     p.add_argument("--from", dest="t_from", default=None, help="start: T+<s> or UTC ISO (default: log start)")
     p.add_argument("--to", dest="t_to", default=None, help="end: T+<s> or UTC ISO (default: log end)")
@@ -59,13 +62,16 @@ def run(args) -> int:
     from scenarios.cli.replay import camera_numbers
     from scenarios.errors import UserError
     from scenarios.replay.steps import _tuning
-    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, executor_mapper, tune, tuning_toml
+    from scenarios.study.tune import DEFAULT_PARAMS, PARAMS, TuneInputs, executor_mapper, param, tune, tuning_toml
 
     names = DEFAULT_PARAMS if not args.params else tuple(s.strip() for s in args.params.split(",") if s.strip())
-    unknown = [n for n in names if n not in PARAMS]
-    if unknown or not names:
-        raise UserError(f"--params {args.params}: unknown parameter {unknown[0] if unknown else ''!r}; "
-                        f"expected some of {','.join(sorted(PARAMS))}")
+    if not names:
+        raise UserError(f"--params {args.params}: expected some of {','.join(sorted(PARAMS))}")
+    for n in names:
+        try:
+            param(n)
+        except ValueError as e:
+            raise UserError(f"--params {args.params}: {e}") from None
     if args.report_only and not args.report:
         raise UserError("--report-only: needs --report DIR (the folder to write the report into)")
     if not args.output and not args.report_only:
@@ -89,7 +95,9 @@ def run(args) -> int:
     start = sight.start if sight.start is not None else initialise(flight, sight, init=init)
     if start.alignment is not None:
         base = base.with_(init_att_sigma=max(base.init_att_sigma, start.alignment.att_sigma))
-    inputs = TuneInputs(flight.imu, start.state, flight.gps, sight.vectors, flight.mounts)
+    base = base.for_cameras(flight.cam_numbers)
+    inputs = TuneInputs(flight.imu, start.state, flight.gps, sight.vectors, flight.mounts,
+                        cam_numbers=tuple(flight.cam_numbers))
     if args.verbose:
         h = logging.StreamHandler()
         h.setFormatter(logging.Formatter("%(message)s"))
@@ -101,7 +109,8 @@ def run(args) -> int:
     with executor_mapper(args.jobs, client=client) as mapper, \
             tqdm(desc="tune: filter runs", unit="run", disable=args.quiet) as bar:
         try:
-            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar, mapper=mapper)
+            res = tune(inputs, base, names, max_iter=args.max_iter, progress=bar, mapper=mapper,
+                       cameras=not args.per_target_scales)
         except ValueError as e:
             raise UserError(f"--params: {e}") from None
     print(res.report())

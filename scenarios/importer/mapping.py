@@ -193,6 +193,11 @@ class Checks:
     height_max_m: float = 3_000_000.0
     speed_max_mps: float = 9000.0
     gap_factor: float = 1.5  # a gap is a step > gap_factor x the median step
+    #: a flat top below these magnitudes is not read as a clipped range: flight gyros and
+    #: accelerometers have ranges of at least ~30 deg/s and 2 g, and a quantised rate that
+    #: steps to a plateau below them holds one value for a second or more
+    saturation_gyro_min_rad_s: float = 0.5
+    saturation_accel_min: float = 2.0 * 9.80665
     span_max_h: float = 72.0  # a record spans at most this long and starts this close to lift-off
     errors_fatal: bool = True
 

@@ -136,8 +136,9 @@ def _runs(mask: np.ndarray) -> np.ndarray:
 
 
 def check_saturation(report: Report, stream: str, what: str, x: np.ndarray, rate_hz: float,
-                     declared: float | None, unit: str, scale: float) -> None:
-    """Flat tops at the largest magnitude of each axis, or samples at the declared range."""
+                     declared: float | None, unit: str, scale: float, floor: float = 0.0) -> None:
+    """Flat tops at the largest magnitude of each axis (above ``floor``, entered and left at one
+    resolution step per sample or more), or samples at the declared range."""
     axes = "xyz"
     min_run = max(5, int(round(0.25 * rate_hz)))
     for j in range(x.shape[1]):
@@ -150,15 +151,37 @@ def check_saturation(report: Report, stream: str, what: str, x: np.ndarray, rate
                            f"{declared / scale:g} {unit}; first at T+{_tplus(report, stream, int(np.argmax(at))):.3f} s")
                 continue
         m = a.max() if len(a) else 0.0
-        if m <= 0:
+        if m <= floor:
             continue
         at = a >= m * (1.0 - 1e-9)
         runs = _runs(at)
-        if len(runs) and runs.max() >= min_run:
+        if len(runs) and runs.max() >= min_run and _steep_flat_top(a, at, min_run):
             report.add("warning", stream, "saturation",
                        f"{what} {axes[j]}: flat-topped at |{axes[j]}| = {m / scale:.6g} {unit} for {int(at.sum())} "
                        f"samples ({at.sum() / rate_hz:.2f} s, longest run {int(runs.max())}); "
                        f"first at T+{_tplus(report, stream, int(np.argmax(at))):.3f} s: sensor saturated (clipped)")
+
+
+def _steep_flat_top(a: np.ndarray, at: np.ndarray, n: int) -> bool:
+    """Whether the magnitude ``a`` enters and leaves a run of ``at`` (at least ``n`` long; a run at
+    the record's start or end has one side) at one resolution step per sample or more, averaged over
+    the ``n`` samples beside the run. A clipped signal is cut while it still changes; a quantised
+    rate that changes by less than one step per sample on either side of its top holds that value
+    for seconds (a slow peak, a rate that steps and then stays) and is not clipping. The resolution
+    is the smallest non-zero change between samples."""
+    d = np.abs(np.diff(a))
+    if not (d > 0).any():
+        return True
+    q = d[d > 0].min()
+    m = np.r_[False, at, False].astype(np.int8)
+    starts, ends = np.flatnonzero(np.diff(m) == 1), np.flatnonzero(np.diff(m) == -1)
+    for s, e in zip(starts, ends):
+        if e - s < n:
+            continue
+        sides = [x for x in (d[max(0, s - n):s], d[e - 1:e - 1 + n]) if len(x)]
+        if all(x.mean() >= q for x in sides):
+            return True
+    return False
 
 
 def _tplus(report: Report, stream: str, i: int) -> float:
@@ -240,8 +263,8 @@ def check_imu(report: Report, imu, gyro_unit: str, accel_unit: str, checks: Chec
     rate = st.rate_hz or 1.0
     gr = imu.gyro_range / imu.dt.mean() if (inc and imu.gyro_range) else imu.gyro_range
     ar = imu.accel_range / imu.dt.mean() if (inc and imu.accel_range) else imu.accel_range
-    check_saturation(report, "imu", "gyro", w, rate, gr, "deg/s", np.pi / 180.0)
-    check_saturation(report, "imu", "accel", f, rate, ar, "m/s^2", 1.0)
+    check_saturation(report, "imu", "gyro", w, rate, gr, "deg/s", np.pi / 180.0, checks.saturation_gyro_min_rad_s)
+    check_saturation(report, "imu", "accel", f, rate, ar, "m/s^2", 1.0, checks.saturation_accel_min)
     check_gyro_units(report, w, gyro_unit, checks)
     check_accel_units(report, w, f, rate, accel_unit, checks)
 

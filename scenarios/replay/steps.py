@@ -525,7 +525,8 @@ def navigate(flight: Flight, *, tuning=None, init="auto", vectors=None, smoother
     ----------
     flight : Flight
     tuning : None, str or Path, or nav.tuning.Tuning
-        The filter's tuning: None for 003 table 3, a tuning TOML of overrides, or a Tuning.
+        The filter's tuning: None for 003 table 3, a tuning TOML of overrides, or a Tuning (its
+        per-camera keys name the log's camera numbers, :meth:`nav.tuning.Tuning.for_cameras`).
     init : "auto", "truth", "triad", str or Path, InitialState or Start
         The initial state: ``"auto"`` (TRIAD when the vectors hold an epoch with a horizon and a
         Sun vector and the log has GPS, else the log's truth), ``"truth"``, ``"triad"`` (003
@@ -553,7 +554,7 @@ def navigate(flight: Flight, *, tuning=None, init="auto", vectors=None, smoother
     """
     from nav import navigator
     hooks = hooks or Hooks()
-    tuning = _tuning(tuning)
+    tuning = _tuning(tuning).for_cameras(flight.cam_numbers)   # per-camera keys name the log's cameras
     if vectors is None:
         sight = see(flight, init=init, workers=workers, hooks=hooks, wording=wording)
     elif isinstance(vectors, Sight):

@@ -230,8 +230,9 @@ def reference_tune(sc, tun, names, t0: float, t1: float, seed: int = 0, mapper=m
     inp = simulate_inputs(sc, tun, seed, t0, t1)
     kinds = ({"gps_pos", "gps_vel"} if inp.gps is not None else set()) | (
         set(np.unique(inp.vectors.target).tolist()) if inp.vectors is not None else set())
-    params, _why = available(list(names), tun, kinds)
-    return tune(inp, tun, [p.name for p in params], mapper=mapper).by_name()
+    # the simulated vectors draw one P_c scale per target (:func:`_vectors`): estimated per target
+    params, _why = available(list(names), tun, kinds, cameras=False)
+    return tune(inp, tun, [p.name for p in params], mapper=mapper, cameras=False).by_name()
 
 
 def identifiability(sc, tun, names, *, runs: int = 200, control_runs: int = 40, factor: float = 2.0,

@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 import warnings
 from contextlib import contextmanager
@@ -181,8 +182,40 @@ def _params() -> dict:
     return p
 
 
-#: every tunable parameter by name
+#: every tunable parameter by name (the per-camera P_c scales are built by :func:`param`)
 PARAMS = _params()
+#: ``vector_cov_scale_<target>_camera_<k>``: the P_c scale of one camera (the log's number k)
+_CAMERA_PARAM = re.compile(r"vector_cov_scale_(" + "|".join(VECTOR_KINDS) + r")_camera_([1-9][0-9]*)")
+
+
+def camera_param_name(target: str, number: int) -> str:
+    """The name of the P_c scale of ``target`` on the log's camera ``number``."""
+    return f"vector_cov_scale_{target}_camera_{number}"
+
+
+def param(name: str, numbers=()) -> Param:
+    """The parameter ``name``: one of :data:`PARAMS`, or a per-camera P_c scale
+    ``vector_cov_scale_<target>_camera_<k>`` on the log's camera k, which is the filter's camera
+    index ``numbers.index(k)`` (``numbers``: the log's numbers of the filter's cameras; empty:
+    index k - 1). Raises ``ValueError`` naming an unknown parameter."""
+    if name in PARAMS:
+        return PARAMS[name]
+    m = _CAMERA_PARAM.fullmatch(name)
+    if not m:
+        raise ValueError(f"params: unknown parameter {name!r}; expected some of {sorted(PARAMS)} or "
+                         f"vector_cov_scale_<target>_camera_<k>")
+    tg, k = m.group(1), int(m.group(2))
+    numbers = list(numbers)
+    if numbers and k not in numbers:
+        raise ValueError(f"params: {name}: camera {k} is not replayed (cameras: {numbers})")
+    c = numbers.index(k) if numbers else k - 1
+    return Param(name, "x", lambda t: t.vector_cov_scale_for(tg, c), _set_pair("vector_cov_scale_by_camera", (c, tg)),
+                 frozenset({(tg, c)}), (("vectors", f"cov_scale_{tg}_camera_{k}", 1.0),))
+
+
+def is_gm_param(name: str) -> bool:
+    """A parameter of the Gauss-Markov vector errors (:data:`GM_PARAMS`, or a per-camera P_c scale)."""
+    return name in GM_PARAMS or _CAMERA_PARAM.fullmatch(name) is not None
 #: the parameters ``tune`` estimates unless told otherwise (those the flight can carry; the ones
 #: without measurements are dropped with the reason)
 DEFAULT_PARAMS = ("vector_white_hor", "vector_white_sun", "vector_white_moon", "vector_cov_scale_hor",
@@ -199,6 +232,9 @@ class TuneInputs:
     vectors: VectorData | None
     R_bc: list
     lever_b: tuple = (0.0, 0.0, 0.0)
+    #: the log's camera numbers of the filter's camera indices (empty: index + 1); they name the
+    #: per-camera parameters (:func:`param`)
+    cam_numbers: tuple = ()
 
 
 @dataclass
@@ -353,7 +389,7 @@ class Objective:
         return st
 
     def __setstate__(self, st):
-        self.__dict__.update(st, params=[PARAMS[n] for n in st["params"]])
+        self.__dict__.update(st, params=[param(n, st["inputs"].cam_numbers) for n in st["params"]])
 
 
 def _remote_call(obj: Objective, theta) -> tuple:
@@ -524,18 +560,41 @@ def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, ma
     return theta, f, iset, info, hdiag, converged
 
 
-def available(names, base: Tuning, kinds: set) -> tuple[list, dict]:
-    """The parameters of ``names`` the flight and tuning can estimate, and the reason for each
-    of the others."""
-    unknown = [n for n in names if n not in PARAMS]
-    if unknown:
-        raise ValueError(f"params: unknown parameter {unknown[0]!r}; expected some of {sorted(PARAMS)}")
-    ok, why = [], {}
+def per_camera(names, seen: set, numbers=()) -> list:
+    """``names`` with each per-target P_c scale ``vector_cov_scale_<target>`` whose target the
+    flight has on two or more cameras replaced by one scale per camera
+    (``vector_cov_scale_<target>_camera_<k>``, k the log's number of camera index c in ``seen``'s
+    ``(target, c)`` pairs; ``numbers`` as in :func:`param`), without repeating a name."""
+    out = []
     for n in names:
-        p = PARAMS[n]
+        tg = n.removeprefix("vector_cov_scale_")
+        cams = sorted(c for kind, c in seen if kind == tg) if n.startswith("vector_cov_scale_") else []
+        if n in PARAMS and len(cams) >= 2:
+            new = [camera_param_name(tg, numbers[c] if numbers else c + 1) for c in cams]
+        else:
+            new = [n]
+        out += [x for x in new if x not in out]
+    return out
+
+
+def _kind_text(kind) -> str:
+    """A measurement kind, or ``(target, camera index)`` as "target on camera index 0" text."""
+    return kind if isinstance(kind, str) else f"{kind[0]} (camera index {kind[1]})"
+
+
+def available(names, base: Tuning, kinds: set, numbers=(), *, cameras: bool = True) -> tuple[list, dict]:
+    """The parameters of ``names`` the flight and tuning can estimate, and the reason for each
+    of the others. ``kinds``: the accepted measurement kinds, and ``(target, camera index)``
+    pairs of the vectors; a per-target P_c scale is estimated per camera where the flight has its
+    target on two or more cameras (:func:`per_camera`; ``cameras=False``: one scale per target)."""
+    seen = {k for k in kinds if isinstance(k, tuple)}
+    have = set(kinds) | {k[0] for k in seen}
+    ok, why = [], {}
+    for n in per_camera(names, seen if cameras else set(), numbers):
+        p = param(n, numbers)
         reason = p.applies(base)
-        if reason is None and not (p.needs & kinds):
-            reason = f"the flight has no accepted {'/'.join(sorted(p.needs))} measurement"
+        if reason is None and not (p.needs & have):
+            reason = f"the flight has no accepted {'/'.join(sorted(map(_kind_text, p.needs)))} measurement"
         if reason is None and p.get(base) <= 0:
             reason = "its prior is zero (the tuning does not model it)"
         if reason:
@@ -546,24 +605,26 @@ def available(names, base: Tuning, kinds: set) -> tuple[list, dict]:
 
 
 def tune(inputs: TuneInputs, base: Tuning, names=DEFAULT_PARAMS, *, max_iter: int = 20, max_rounds: int = 3,
-         progress=None, mapper=map) -> TuneResult:
-    """Maximum-likelihood estimates of the parameters ``names`` (module docstring). The filter's
-    per-measurement rejection warnings are silenced during the runs (each run would repeat them)."""
+         progress=None, mapper=map, cameras: bool = True) -> TuneResult:
+    """Maximum-likelihood estimates of the parameters ``names`` (module docstring); a target's P_c
+    scale per camera where two or more cameras see it (``cameras=False``: one per target,
+    :func:`available`). The filter's per-measurement rejection warnings are silenced during the
+    runs (each run would repeat them)."""
     nav_log = logging.getLogger("nav.navigator")
     level = nav_log.level
     nav_log.setLevel(logging.ERROR)
     try:
-        return _tune(inputs, base, names, max_iter, max_rounds, progress, mapper)
+        return _tune(inputs, base, names, max_iter, max_rounds, progress, mapper, cameras)
     finally:
         nav_log.setLevel(level)
 
 
-def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneResult:
+def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper, cameras) -> TuneResult:
     t_start = time.perf_counter()
     obj0 = Objective(inputs, base, [], progress)
     obj0.fix_set(np.zeros(0))
-    kinds = {k[1] for k in obj0.keys}
-    params, why = available(list(names), base, kinds)
+    kinds = {k[1] for k in obj0.keys} | {(k[1], k[2]) for k in obj0.keys if k[1] in VECTOR_KINDS}
+    params, why = available(list(names), base, kinds, inputs.cam_numbers, cameras=cameras)
     obj = Objective(inputs, base, params, progress)
     obj.gps, obj.vectors, obj.keys = obj0.gps, obj0.vectors, obj0.keys
     warn = []
@@ -587,8 +648,8 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
         warn.append("the optimisation did not converge within its iterations: the best point is reported")
     ests = _estimates(obj, params, theta, info, why, base)
     tuned = base
-    for e in ests:
-        tuned = PARAMS[e.name].set(tuned, e.value) if e.estimated else tuned
+    for e, p in zip(ests, params):
+        tuned = p.set(tuned, e.value) if e.estimated else tuned
     settings = gm_mode_written(base, ests)
     if settings:
         tuned = replace(tuned, vector_gm_mode="E")
@@ -601,7 +662,8 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper) -> TuneRe
                       time.perf_counter() - t_start, converged, n_meas, rounds, warn, settings)
 
 
-#: the parameters of the Gauss-Markov vector errors (their stationary sigma and correlation time)
+#: the parameters of the Gauss-Markov vector errors (their stationary sigma and correlation time;
+#: the per-camera P_c scales too, :func:`is_gm_param`)
 GM_PARAMS = ("vector_cov_scale_hor", "vector_cov_scale_sun", "vector_cov_scale_moon", "correlation_time")
 
 
@@ -619,7 +681,7 @@ def gm_mode_written(base: Tuning, ests) -> list:
     "The filter the estimate is for"). The tuning written therefore estimates them."""
     if base.vector_gm_mode != "C":
         return []
-    done = [e.name for e in ests if e.name in GM_PARAMS and e.estimated]
+    done = [e.name for e in ests if is_gm_param(e.name) and e.estimated]
     if not done:
         return []
     return [("vectors", "gm_mode", "E", f"estimated: the likelihood of {', '.join(done)} is that of the filter "
@@ -717,7 +779,7 @@ def _estimates(obj: Objective, params, theta, info, why: dict, base: Tuning) -> 
             out.append(Estimate(p.name, p.get(base), math.exp(th) if (ident or weak or b) else p.get(base), float(s),
                                 ident, reason, p.unit, p.to_unit, bool(b), weak))
     for n, r in why.items():
-        p = PARAMS[n]
+        p = param(n, getattr(obj.inputs, "cam_numbers", ()))
         out.append(Estimate(n, p.get(base), p.get(base), math.inf, False, r, p.unit, p.to_unit))
     return out
 
@@ -755,7 +817,7 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
         comments[(tb, key)] = why
     for e in result.estimates:
         if e.at_bound:
-            for tb, key, val in PARAMS[e.name].entries(e.value):
+            for tb, key, val in param(e.name).entries(e.value):
                 tables.setdefault(tb, {})[key] = val
                 comments[(tb, key)] = f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}"
             continue
@@ -763,7 +825,7 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
             lines.append(f"# {e.name}: not identified ({e.reason}); kept at {e.prior * e.to_unit:.4g} {e.unit}")
             continue
         what = "ML estimate" if e.identified else "ML estimate, WEAKLY identified (3 SE > 30 %)"
-        for tb, key, val in PARAMS[e.name].entries(e.value):
+        for tb, key, val in param(e.name).entries(e.value):
             tables.setdefault(tb, {})[key] = val
             comments[(tb, key)] = (f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
                                    f"prior {e.prior * e.to_unit:.4g} {e.unit}")

@@ -44,7 +44,7 @@ def _recovery(bench):
     fl = simulate_flight(load_scenario("atek"), seed=7, duration=200.0)
     truth = {"vector_white_hor": 0.3 * 0.002, "vector_cov_scale_hor": 2.5, "gps_noise_scale": 2.0}
     res = tune(draw(fl, 11, truth["vector_white_hor"], truth["vector_cov_scale_hor"], truth["gps_noise_scale"]),
-               base_tuning(), list(truth))
+               base_tuning(), list(truth), cameras=False)   # the drawn P_c scale is per target
     rel, cover = check_recovery(res, truth)
     bench("tune.param_rel_err_max", max(rel.values()) if rel else math.inf, "fraction", baseline=0.30,
           baseline_name="target 30 %", identified=len(rel), covered_3se=int(sum(cover.values())),
