@@ -133,7 +133,7 @@ def test_cli_report_after_tuning(vlog, tmp_path, capsys):
     from scenarios.cli._main import main
     d, out = tmp_path / "obs", tmp_path / "t.toml"
     rc = main(["tune", str(vlog), "--from", "T+60", "--to", "T+100", "--quiet", "--params", "gps_noise_scale",
-               "--max-iter", "2", "-o", str(out), "--report", str(d)])
+               "--max-iter", "2", "-o", str(out), "--report", str(d), "-j", "0"])
     text = capsys.readouterr().out
     assert rc == 0 and out.exists() and "gps_noise_scale" in text and "observability:" in text
     rows = {x["state"]: x for x in csv.DictReader(open(d / "observability.csv"))}

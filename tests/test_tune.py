@@ -464,7 +464,7 @@ def test_cli_tune(vlog, tmp_path, capsys):
     from scenarios.config.tuning import load_tuning
     out = tmp_path / "t.toml"
     rc = main(["tune", str(vlog), "--from", "T+60", "--to", "T+140", "--targets", "earth", "--quiet",
-               "--params", "vector_white_sun,gps_noise_scale", "-o", str(out)])
+               "--params", "vector_white_sun,gps_noise_scale", "-o", str(out), "-j", "0"])
     text = capsys.readouterr().out
     print(text)
     assert rc == 0

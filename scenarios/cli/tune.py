@@ -9,6 +9,8 @@ adds the observability report (:mod:`scenarios.study.observability`) at the tune
 ``--report-only`` writes it at the base tuning without the optimisation."""
 from __future__ import annotations
 
+import os
+
 NAME = "tune"
 HELP = "estimate the filter's noise parameters from a flight (maximum likelihood) -> tuning TOML"
 
@@ -34,8 +36,9 @@ def add_arguments(p) -> None:
                    help="auto: images if the log has them, else its vectors")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--max-iter", type=int, default=20, help="scoring iterations per round (default 20)")
-    p.add_argument("-j", "--jobs", type=int, default=0,
-                   help="local processes for the filter replays of each scoring iteration (default 0: this process)")
+    p.add_argument("-j", "--jobs", type=int, default=None,
+                   help="local processes for the filter replays of each scoring iteration (default: one per core; "
+                        "0: this process only)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run the filter replays on this Dask distributed scheduler (as `study --scheduler`)")
     p.add_argument("--report", default=None, metavar="DIR",
@@ -76,6 +79,8 @@ def run(args) -> int:
         raise UserError("--report-only: needs --report DIR (the folder to write the report into)")
     if not args.output and not args.report_only:
         raise UserError("-o/--output: expected the tuning TOML to write (or --report DIR --report-only)")
+    if args.jobs is None:
+        args.jobs = os.cpu_count() or 1
     if args.jobs < 0:
         raise UserError(f"--jobs {args.jobs}: expected >= 0")
     if not 0.0 <= args.report_low <= args.report_high <= 1.0:
