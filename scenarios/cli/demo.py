@@ -3,7 +3,9 @@
 1. simulate ``atek`` with rendered camera images (two cameras at 1 Hz in the coast T+60..T+430)
    into ``logs/atek.mcap`` (skipped when that log exists and ``--fresh`` is not given);
 2. replay it: vision front end in worker processes, filter, smoother
-   (``logs/atek.solution.mcap``, Rerun recording ``logs/atek.rrd``);
+   (``logs/atek.solution.mcap``, Rerun recording ``logs/atek.rrd``), with the noise parameters
+   that ``horizon-nav tune`` estimates from this log (``scenarios/library/tuning/atek-ml.toml``;
+   ``--tuning table3`` replays with 003's table 3 instead);
 3. print the summary (attitude errors against the simulator's truth).
 
 Open the recording with ``make view`` (``.venv/bin/rerun logs/atek.rrd``).
@@ -14,6 +16,9 @@ import argparse
 import time
 from pathlib import Path
 
+#: the tuning the demo replays with: ``tune`` on the demo's own log (docs/tuning.md)
+DEMO_TUNING = Path(__file__).resolve().parents[1] / "library" / "tuning" / "atek-ml.toml"
+
 NAME = "demo"
 HELP = "simulate the ATEK flight with images, replay it, print the summary, write logs/atek.rrd"
 
@@ -23,6 +28,9 @@ def add_arguments(p) -> None:
     p.add_argument("--fresh", action="store_true", help="simulate again even if logs/atek.mcap exists")
     p.add_argument("--workers", type=int, default=0, help="vision worker processes (default: one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--tuning", default=str(DEMO_TUNING),
+                   help="filter tuning TOML, or 'table3' for 003's table 3 (default: the noise parameters "
+                        "`horizon-nav tune` estimates from the demo log, scenarios/library/tuning/atek-ml.toml)")
 
 
 def run(args) -> int:
@@ -40,7 +48,10 @@ def run(args) -> int:
     else:
         print(f"{log}: exists, not simulated again (--fresh to redo)")
     t1 = time.perf_counter()
-    ra = argparse.Namespace(log=str(log), output=str(out / "atek.solution.mcap"), tuning=None, t_from="T+60",
+    tuning = None if args.tuning == "table3" else args.tuning
+    print(f"tuning: {tuning or '003 table 3'}" + (" (estimated from this log by `horizon-nav tune`)"
+                                                  if tuning == str(DEMO_TUNING) else ""))
+    ra = argparse.Namespace(log=str(log), output=str(out / "atek.solution.mcap"), tuning=tuning, t_from="T+60",
                             t_to="T+430", cameras=None, targets="earth,sun", init=None, init_file=None, smoother=True,
                             vision="auto", vision_config=None, workers=args.workers, rrd=str(out / "atek.rrd"),
                             no_rerun=False, spawn=False, json=False, quiet=args.quiet)
