@@ -595,3 +595,18 @@ def test_cli_identify(tmp_path, capsys):
     assert tab["power"][0] == 1.0 and tab["flights_lo"][0] == 2 and tab["predicted_power"][0] > 0.999
     assert "likelihood-ratio test" in (tmp_path / "identifiability.txt").read_text()
     assert main(["identify", "atek", "--from", "70", "--to", "60", "-o", str(tmp_path)]) == 2
+
+
+def test_library_tunings_load_and_the_demo_uses_tunes_output():
+    """Every shipped tuning file parses (a key renamed in nav.tuning would break them), and the
+    demo's default is the file `tune` wrote for the demo log: the horizon's P_c scale per camera
+    and the Gauss-Markov vector states estimated, as the likelihood had them."""
+    from scenarios.cli.demo import DEMO_TUNING
+    from scenarios.config.tuning import DEFAULT_TUNING_FILE, load_tuning
+    files = sorted(DEFAULT_TUNING_FILE.parent.glob("*.toml"))
+    assert DEMO_TUNING in files and len(files) >= 4
+    for p in files:
+        load_tuning(p)
+    t = load_tuning(DEMO_TUNING)
+    assert t.vector_gm_mode == "E"
+    assert sorted(c for (c, tg), _ in t.vector_cov_scale_by_camera if tg == "hor") == [0, 1]
