@@ -28,8 +28,8 @@ stationary covariance in every innovation covariance, which the likelihood does 
 
 The optimiser
 -------------
-Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping,
-in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
+Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping
+(set from the ratio of the achieved to the predicted decrease, :func:`_damping`), in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
 trust region of a factor 4 per step. One iteration costs 2p + 1 filter runs: at theta and at
 theta +- h e_i (central differences, h = :data:`STEP`). Those runs give the gradient of the
 objective and the derivatives of every innovation and its covariance, hence the Fisher
@@ -521,6 +521,22 @@ def _variances(info: np.ndarray) -> np.ndarray:
     return np.where(flat, np.inf, var)
 
 
+def _model_decrease(grad, info, step) -> float:
+    """Decrease of -log L that the scoring model predicts for ``step``: ``-(g' s + s' I s / 2)``."""
+    return float(-(grad @ step + 0.5 * step @ info @ step))
+
+
+def _damping(lam: float, gain: float, predicted: float) -> float:
+    """Levenberg-Marquardt damping after an accepted step from the ratio of the achieved to the
+    predicted decrease (Nocedal & Wright, Numerical Optimization, alg. 4.1): below 1/4 the model
+    overstates the decrease (a step across a curved valley, which then zigzags) and the damping
+    grows tenfold; above 3/4 it shrinks tenfold; between, it stays."""
+    rho = gain / predicted if predicted > 0 else 1.0
+    if rho < 0.25:
+        return min(lam * 10, 1e6)
+    return max(lam / 10, 1e-6) if rho > 0.75 else lam
+
+
 def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, mapper=map):
     """Fisher scoring from ``theta0`` (module docstring); converged when the predicted or the
     achieved decrease of -log L is below ``tol`` (0.1: well below the 0.5 that one standard
@@ -543,7 +559,8 @@ def optimise(obj: Objective, theta0, *, max_iter: int = 20, tol: float = 0.1, ma
             th_new = np.clip(theta + step, lo, hi)
             f_new, iset_new = obj(th_new)
             if f_new < f:
-                gain, theta, f, iset, lam = f - f_new, th_new, f_new, iset_new, max(lam / 10, 1e-6)
+                lam = _damping(lam, f - f_new, _model_decrease(grad, info, th_new - theta))
+                gain, theta, f, iset = f - f_new, th_new, f_new, iset_new
                 break
             lam *= 10
         else:
