@@ -29,7 +29,8 @@ stationary covariance in every innovation covariance, which the likelihood does 
 The optimiser
 -------------
 Fisher scoring (Newton's method with the expected Hessian) with Levenberg-Marquardt damping
-(set from the ratio of the achieved to the predicted decrease, :func:`_damping`), in log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
+(set from the ratio of the achieved to the predicted decrease, :func:`_damping`), in
+log-parameters within bounds (a factor :data:`BOUND_FACTOR` either side of the prior) and a
 trust region of a factor 4 per step. One iteration costs 2p + 1 filter runs: at theta and at
 theta +- h e_i (central differences, h = :data:`STEP`). Those runs give the gradient of the
 objective and the derivatives of every innovation and its covariance, hence the Fisher
@@ -216,6 +217,8 @@ def param(name: str, numbers=()) -> Param:
 def is_gm_param(name: str) -> bool:
     """A parameter of the Gauss-Markov vector errors (:data:`GM_PARAMS`, or a per-camera P_c scale)."""
     return name in GM_PARAMS or _CAMERA_PARAM.fullmatch(name) is not None
+
+
 #: the parameters ``tune`` estimates unless told otherwise (those the flight can carry; the ones
 #: without measurements are dropped with the reason)
 DEFAULT_PARAMS = ("vector_white_hor", "vector_white_sun", "vector_white_moon", "vector_cov_scale_hor",
