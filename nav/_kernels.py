@@ -28,6 +28,28 @@ def skew(v):
     return K
 
 
+@nb.njit(cache=True)
+def inverse3_into(M, out):
+    """``out = M^-1`` for a (3, 3) ``M``: the adjugate over the determinant (Cramer's rule), exact
+    to rounding for the well-conditioned matrices it serves (IMU calibrations within a few % of
+    I). Returns the determinant; a zero one leaves ``out`` non-finite."""
+    c00 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
+    c01 = M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]
+    c02 = M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]
+    det = M[0, 0] * c00 + M[0, 1] * c01 + M[0, 2] * c02
+    r = 1.0 / det if det != 0.0 else np.nan
+    out[0, 0] = c00 * r
+    out[1, 0] = c01 * r
+    out[2, 0] = c02 * r
+    out[0, 1] = (M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]) * r
+    out[1, 1] = (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]) * r
+    out[2, 1] = (M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]) * r
+    out[0, 2] = (M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]) * r
+    out[1, 2] = (M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]) * r
+    out[2, 2] = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) * r
+    return det
+
+
 @nb.njit(cache=True, fastmath=False)
 def gravity(x0, x1, x2):
     """J2 gravitation + centrifugal acceleration in e at (x0, x1, x2) [m/s^2] as a tuple; the

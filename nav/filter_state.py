@@ -26,6 +26,8 @@ columns in the transition if it is not a constant, and a feedback row in :func:`
 """
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -34,7 +36,7 @@ from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R, skew
 from nav.earth import GM, OMEGA_E
 from nav.error_state import (N_TRANSITION, StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
                              transition_columns)
-from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration
+from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration, affine_into
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.tuning import Tuning
 
@@ -137,15 +139,8 @@ class FilterState:
                                       np.array([g.slice.start for g in zeta_groups], dtype=np.int64)])
 
     def _set_calibration(self, affine: bool) -> None:
-        """Refresh ``cal_m`` from the calibration estimate (A stays as it is unless ``affine``)."""
-        if affine:
-            A_f, b_f, A_w, b_w = self.calibration.matrices()
-            self.cal_m[0, :3], self.cal_m[1, :3] = A_f, A_w
-        else:
-            b_f, b_w = self.calibration.b_f, self.calibration.b_w
-        self.cal_m[0, 3], self.cal_m[1, 3] = b_f, b_w
-        if self.gyro_gm.size:
-            self.cal_m[1, 3] += self.gw_hat
+        """Refresh ``cal_m`` from the calibration estimate (:func:`calibration_into`)."""
+        calibration_into(self.fed, self.fb, self.cal_m, affine)
 
     def propagate(self, ts, fw, traj, k: int, k_end: int, avg: bool, A_out, d_out) -> None:
         """The INS and the covariance from IMU sample k to k_end (:func:`propagate_block`)."""
@@ -175,20 +170,9 @@ class FilterState:
         (the block's propagation left them at identity), so ``Phi P Phi^T`` is the block's result
         with those rows and columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``
         (the exact discrete form of the PSD ``2 sigma^2 / tau``). Returns phi."""
-        phi = np.exp(-dt / tau)
-        self.P[i, :] *= phi
-        self.P[:, i] *= phi
-        self.P[i, i] += (1.0 - phi * phi) * sigma ** 2
-        d_out[i] = phi
+        phi = math.exp(-dt / tau)
+        gm_decay_kernel(self.P, i, phi, (1.0 - phi * phi) * sigma ** 2, d_out)
         return phi
-
-    def calibration_changed(self) -> None:
-        """Refresh the calibration the INS applies after a feedback (:func:`feedback_kernel`) into
-        the IMU error estimates
-        (only the biases when no scale factor or misalignment is estimated: A stays as it is;
-        :func:`nav.updates.update_feedback_kernel` copies the biases itself and calls for this
-        only when ``affine_estimated``)."""
-        self._set_calibration(self.affine_estimated)
 
     def snapshot(self):
         """Copies of what an update changes: covariance, nominal state, fed-back estimates."""
@@ -293,6 +277,31 @@ def feedback_kernel(dx, nav, fed, fb):
         else:
             fed[o] += dx[st]
     return changed
+
+
+@nb.njit(cache=True)
+def gm_decay_kernel(P, idx, phi, q, d_out):
+    """Rows and columns ``idx`` of ``P`` scaled by ``phi`` (in place), ``q`` added to their
+    diagonal, ``d_out[idx] = phi`` (:meth:`FilterState._gm_decay`)."""
+    n = P.shape[0]
+    for i in idx:
+        for j in range(n):
+            P[i, j] *= phi
+            P[j, i] *= phi
+    for i in idx:
+        P[i, i] += q
+        d_out[i] = phi
+
+
+@nb.njit(cache=True)
+def calibration_into(fed, fb, cal_m, affine):
+    """``cal_m`` from the fed-back estimates (``fed`` starts with the rows of :data:`CAL_FIELDS`):
+    when ``affine``, the matrices A of :meth:`nav.imu_errors.ImuCalibration.matrices`
+    (:func:`nav.imu_errors.affine_into`; otherwise A stays as it is, no scale factor or
+    misalignment being estimated), and the biases (:func:`biases_into_calibration`)."""
+    if affine:
+        affine_into(fed[6:9], fed[9:12], fed[12:15], fed[15:18], fed[18:21], cal_m)
+    biases_into_calibration(fed, fb, cal_m)
 
 
 @nb.njit(cache=True)

@@ -26,9 +26,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 
-from nav._kernels import skew
+from nav._kernels import inverse3_into, skew
 from nav.checks import as_vectors
 
 
@@ -52,10 +53,31 @@ class ImuCalibration:
         ``A = (I + diag(s) - [m x] + S(n))^-1`` (``n = 0`` for the accelerometer): the exact inverse
         of the first-order model above.
         """
-        A_f = np.linalg.inv(np.eye(3) + np.diag(self.s_f) - skew(np.asarray(self.m_f, float)))
-        A_w = np.linalg.inv(np.eye(3) + np.diag(self.s_w) - skew(np.asarray(self.m_w, float))
-                            + symmetric_offdiagonal(self.n_w))
-        return A_f, self.b_f.copy(), A_w, self.b_w.copy()
+        A = np.empty((2, 3, 3))
+        affine_into(*(np.asarray(getattr(self, k), float) for k in ("s_f", "m_f", "s_w", "m_w", "n_w")), A)
+        return A[0], self.b_f.copy(), A[1], self.b_w.copy()
+
+
+@nb.njit(cache=True)
+def affine_into(s_f, m_f, s_w, m_w, n_w, out):
+    """``out[0] = (I + diag(s_f) - [m_f x])^-1`` and ``out[1] = (I + diag(s_w) - [m_w x] + S(n_w))^-1``
+    (:meth:`ImuCalibration.matrices`; ``out`` (>= 2, >= 3, 3), its first three columns written)."""
+    M = np.empty((3, 3))
+    A = np.empty((3, 3))
+    for t in range(2):
+        s, m = (s_f, m_f) if t == 0 else (s_w, m_w)
+        K = skew(m)
+        for i in range(3):
+            for j in range(3):
+                M[i, j] = (1.0 + s[i] if i == j else 0.0) - K[i, j]
+        if t == 1:
+            M[0, 1] += n_w[2]; M[1, 0] += n_w[2]
+            M[0, 2] += n_w[1]; M[2, 0] += n_w[1]
+            M[1, 2] += n_w[0]; M[2, 1] += n_w[0]
+        inverse3_into(M, A)
+        for i in range(3):
+            for j in range(3):
+                out[t, i, j] = A[i, j]
 
 
 GROUP_TO_FIELD = {"accel_bias": "b_f", "gyro_bias": "b_w", "accel_scale": "s_f",

@@ -13,8 +13,16 @@ first derivatives of ``nu_k`` and ``S_k`` (Harvey eq. (3.4.69))::
 
     I_ij = sum_k 0.5 tr(S^-1 dS/dtheta_i S^-1 dS/dtheta_j) + dnu/dtheta_i^T S^-1 dnu/dtheta_j
 
-which :func:`fisher_information` evaluates from derivatives the caller obtains (e.g. by central
-differences of filter runs).
+which :func:`fisher_information` evaluates from derivatives the caller obtains (e.g. by finite
+differences of filter runs). The same derivatives give the gradient, the score (Harvey eq. (3.4.66))::
+
+    d(-log L)/dtheta_i = sum_k 0.5 tr(S^-1 dS_i) - 0.5 nu^T S^-1 dS_i S^-1 nu + nu^T S^-1 dnu_i
+
+which :func:`score` evaluates. Where S is a sum of terms each scaled by one parameter (a noise
+variance), a forward difference in log-parameters scales every ``dS_i`` by the same
+``(e^h - 1) / h``, so the score's zero, the estimate, does not move with the step ``h``; the
+forward difference of -log L itself is off by ``h/2`` times its curvature, many standard errors
+for a well-identified parameter.
 """
 from __future__ import annotations
 
@@ -22,7 +30,7 @@ import math
 
 import numpy as np
 
-__all__ = ["InnovationSet", "innovation_set", "negative_log_likelihood", "fisher_information"]
+__all__ = ["InnovationSet", "innovation_set", "negative_log_likelihood", "fisher_information", "score"]
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -86,3 +94,22 @@ def fisher_information(S: np.ndarray, dS: np.ndarray, dnu: np.ndarray) -> np.nda
     tr = 0.5 * np.einsum("imab,jmba->ij", A, A)         # 0.5 tr(S^-1 dS_i S^-1 dS_j)
     W = np.einsum("mab,pmb->pma", Si, dnu)
     return tr + np.einsum("ima,jma->ij", dnu, W)
+
+
+def score(nu: np.ndarray, S: np.ndarray, dS: np.ndarray, dnu: np.ndarray) -> np.ndarray:
+    """Gradient (p,) of -log L with respect to the parameters from blocks of one dimension d
+    (module docstring): ``nu`` (m, d) and ``S`` (m, d, d) at the point, ``dS`` (p, m, d, d) and
+    ``dnu`` (p, m, d) their derivatives. Sum the results of the dimensions present.
+
+    Examples
+    --------
+    One scalar block nu = 1, S = 2 with dS = 1 and dnu = 0: 0.5 (1/2) - 0.5 (1/2)(1)(1/2) = 0.125.
+
+    >>> float(score(np.ones((1, 1)), np.full((1, 1, 1), 2.0), np.ones((1, 1, 1, 1)), np.zeros((1, 1, 1)))[0])
+    0.125
+    """
+    Si = np.linalg.inv(S)
+    w = np.einsum("mab,mb->ma", Si, nu)                   # S^-1 nu
+    A = np.einsum("mab,pmbc->pmac", Si, dS)               # S^-1 dS_i
+    return (0.5 * np.einsum("pmaa->p", A) - 0.5 * np.einsum("ma,pmab,mb->p", w, dS, w)
+            + np.einsum("ma,pma->p", w, dnu))

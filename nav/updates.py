@@ -43,7 +43,7 @@ import numpy as np
 
 from nav.earth import OMEGA_E
 from nav.ephemeris import moon_position_e, sun_position_e
-from nav.filter_state import biases_into_calibration, extrapolate, feedback_kernel
+from nav.filter_state import calibration_into, extrapolate, feedback_kernel
 from nav.measurements import (predict_vector, second_order_noise, target_direction_e, vector_covariance_problem,
                               vector_covariance_problems, vector_jacobians, vector_rate)
 from nav.rotation import tangent_basis
@@ -181,11 +181,9 @@ class EpochStack:
         np.cumsum([b[4] for b in blocks], out=offs[1:])
         m, nb_ = rows.size, len(blocks)
         dx = np.empty(st.n)
-        status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, np.zeros(nb_), np.empty((m, m)),
+        status = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, np.zeros(nb_), np.empty((m, m)),
                                                  np.empty(nb_), np.empty(nb_, dtype=np.int64), dx, st.nav, st.fed,
-                                                 st.fb, st.cal_m)
-        if changed and st.affine_estimated:
-            st.calibration_changed()
+                                                 st.fb, st.cal_m, st.affine_estimated)
         return dx if status == OK else None
 
     def _update(self, st, good):
@@ -198,27 +196,22 @@ class EpochStack:
             rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in good])
             H, s, R = self.H[rows], self.s[rows], self.R[np.ix_(rows, rows)]
         dx = self._dx
-        status, changed = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
-                                                 st.nav, st.fed, st.fb, st.cal_m)
-        if changed and st.affine_estimated:
-            st.calibration_changed()
+        status = update_feedback_kernel(st.P, H, R, s, st.est_mask, offs, gates, S, nis, code, dx,
+                                        st.nav, st.fed, st.fb, st.cal_m, st.affine_estimated)
         return status, dx, S, offs_l, code.tolist(), nis.tolist()
 
 
 @nb.njit(cache=True)
-def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, fed, fb, cal_m):
+def update_feedback_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx, nav, fed, fb, cal_m, affine):
     """The gated stacked Schmidt update (:func:`nav.schmidt.update_kernel`, arguments as there)
     and, when it is applied, the feedback of ``dx`` (:func:`nav.filter_state.feedback_kernel`)
-    with the fed-back IMU biases copied into the INS calibration ``cal_m`` (its A matrices are
-    the caller's to refresh when scale factors or misalignments are estimated).
-    Returns ``(status, IMU calibration changed)``."""
+    with the INS calibration ``cal_m`` refreshed from the fed-back IMU errors when they changed
+    (:func:`nav.filter_state.calibration_into`; its A matrices only when ``affine``: scale factors
+    or misalignments estimated). Returns the status."""
     status = update_kernel(P, H, R, s, est, offs, gates, S, nis, code, dx)
-    changed = False
-    if status == OK:
-        changed = feedback_kernel(dx, nav, fed, fb)
-        if changed:
-            biases_into_calibration(fed, fb, cal_m)
-    return status, changed
+    if status == OK and feedback_kernel(dx, nav, fed, fb):
+        calibration_into(fed, fb, cal_m, affine)
+    return status
 
 
 class GpsFixes:

@@ -10,7 +10,7 @@ import pytest
 from scipy.linalg import expm
 
 from nav.error_state import TransitionBuilder, build_layout, discrete_transition, error_dynamics
-from nav.filter_state import FilterState, feedback_kernel
+from nav.filter_state import FilterState, calibration_into, feedback_kernel
 from nav.imu_errors import (ImuCalibration, apply_calibration, corrupt, nonorthogonality_jacobian,
                             split_misalignment, symmetric_offdiagonal)
 from nav.tuning import StateGroupTuning, Tuning, tuning_from_toml
@@ -111,7 +111,7 @@ def test_estimated_nonorthogonality_feeds_the_calibration():
     dx[lay["gyro_nonorthogonality"]] = n
     assert feedback_kernel(dx, st.nav, st.fed, st.fb)
     assert st.affine_estimated
-    st.calibration_changed()
+    calibration_into(st.fed, st.fb, st.cal_m, st.affine_estimated)
     np.testing.assert_allclose(st.calibration.n_w, n, atol=1e-18)
     np.testing.assert_allclose(st.cal_m[1, :3], np.linalg.inv(np.eye(3) + symmetric_offdiagonal(n)), atol=1e-15)
     np.testing.assert_array_equal(st.R_bc[0], np.eye(3))
