@@ -464,25 +464,19 @@ def _without(gps, vectors, gated: set):
     return gps, vectors
 
 
-def _derivatives(obj: Objective, theta, iset0, mapper=map, *, central: bool = False):
-    """Gradient (p,) and Fisher information (p, p) at ``theta`` from the derivatives of every
-    innovation and its covariance (:func:`nav.likelihood.score`,
-    :func:`nav.likelihood.fisher_information`): forward differences from the p runs at
-    theta + h e_i, or central differences from the 2p runs at theta +- h e_i (``central``),
-    h = :data:`STEP`. The forward score's zero is the central one's where a parameter scales its
-    part of S (nav/likelihood.py), so the search uses forward differences and the standard errors
-    of the estimate central ones."""
+def _derivatives(obj: Objective, theta, iset0, mapper=map):
+    """Gradient (p,) and Fisher information (p, p) at ``theta`` from the forward-difference
+    derivatives of every innovation and its covariance over the p runs at theta + h e_i,
+    h = :data:`STEP` (:func:`nav.likelihood.score`, :func:`nav.likelihood.fisher_information`;
+    the module docstring says why forward differences serve)."""
     p = theta.size
-    signs = (1.0, -1.0) if central else (1.0,)
-    pts = [theta + s * STEP * np.eye(p)[i] for i in range(p) for s in signs]
-    out = obj.many(pts, mapper)
+    out = obj.many([theta + STEP * np.eye(p)[i] for i in range(p)], mapper)
     grad, info = np.zeros(p), np.zeros((p, p))
     for d, (idx, nu0, S0) in iset0.by_dim.items():
         dnu, dS = np.zeros((p, idx.size, d)), np.zeros((p, idx.size, d, d))
         for i in range(p):
-            nup, Sp = _aligned(out[len(signs) * i][1], iset0, d)
-            num, Sm = _aligned(out[2 * i + 1][1], iset0, d) if central else (nu0, S0)
-            dnu[i], dS[i] = (nup - num) / (len(signs) * STEP), (Sp - Sm) / (len(signs) * STEP)
+            nup, Sp = _aligned(out[i][1], iset0, d)
+            dnu[i], dS[i] = (nup - nu0) / STEP, (Sp - S0) / STEP
         grad += score(nu0, S0, dS, dnu)
         info += fisher_information(S0, dS, dnu)
     return grad, info
