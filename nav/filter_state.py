@@ -42,6 +42,8 @@ from nav.tuning import Tuning
 
 CAL_FIELDS = ("b_f", "b_w", "s_f", "m_f", "s_w", "m_w", "n_w")  #: ImuCalibration fields, rows of ``cal_arr``
 N_CAL = 3 * len(CAL_FIELDS)  #: length of the calibration at the start of ``fed``
+#: rows of the scale factors, misalignments and non-orthogonality in ``cal_arr`` (:func:`calibration_into`)
+_S_F, _M_F, _S_W, _M_W, _N_W = (CAL_FIELDS.index(k) for k in ("s_f", "m_f", "s_w", "m_w", "n_w"))
 #: feedback operations: add 3 values, rotate a 3x3, add 1 value, add 3 values into the gyro's error
 FB_ADD3, FB_ROTATE, FB_ADD1, FB_GYRO = 0, 1, 2, 3
 _AFFINE = ("accel_scale", "accel_misalignment", "gyro_scale", "gyro_misalignment", "gyro_nonorthogonality")
@@ -156,7 +158,7 @@ class FilterState:
         attitude rows are the kernel's); the fed-back estimate decays by phi and the INS applies it."""
         phi = self._gm_decay(self.gyro_gm, dt, self.tuning.gyro_gm_tau_s, self.tuning.gyro_gm.sigma, d_out)
         self.gw_hat *= phi
-        self.cal_m[1, 3] = self.calibration.b_w + self.gw_hat
+        biases_into_calibration(self.fed, self.fb, self.cal_m)
 
     def _edge_decay(self, dt: float, d_out) -> None:
         """The Gauss-Markov edge heights over ``dt`` [s] (:meth:`_gm_decay`); the estimates relax
@@ -300,7 +302,8 @@ def calibration_into(fed, fb, cal_m, affine):
     (:func:`nav.imu_errors.affine_into`; otherwise A stays as it is, no scale factor or
     misalignment being estimated), and the biases (:func:`biases_into_calibration`)."""
     if affine:
-        affine_into(fed[6:9], fed[9:12], fed[12:15], fed[15:18], fed[18:21], cal_m)
+        ca = fed[:N_CAL].reshape((N_CAL // 3, 3))
+        affine_into(ca[_S_F], ca[_M_F], ca[_S_W], ca[_M_W], ca[_N_W], cal_m)
     biases_into_calibration(fed, fb, cal_m)
 
 
