@@ -61,7 +61,8 @@ class ImuCalibration:
 @nb.njit(cache=True)
 def affine_into(s_f, m_f, s_w, m_w, n_w, out):
     """``out[0] = (I + diag(s_f) - [m_f x])^-1`` and ``out[1] = (I + diag(s_w) - [m_w x] + S(n_w))^-1``
-    (:meth:`ImuCalibration.matrices`; ``out`` (>= 2, >= 3, 3), its first three columns written)."""
+    (:meth:`ImuCalibration.matrices`; ``out`` (>= 2, >= 3, 3), its first three columns written).
+    A singular matrix (a scale factor of -1) raises ValueError, as numpy's inverse did."""
     M = np.empty((3, 3))
     A = np.empty((3, 3))
     for t in range(2):
@@ -74,7 +75,9 @@ def affine_into(s_f, m_f, s_w, m_w, n_w, out):
             M[0, 1] += n_w[2]; M[1, 0] += n_w[2]
             M[0, 2] += n_w[1]; M[2, 0] += n_w[1]
             M[1, 2] += n_w[0]; M[2, 1] += n_w[0]
-        inverse3_into(M, A)
+        det = inverse3_into(M, A)
+        if not (det != 0.0 and np.isfinite(det)):
+            raise ValueError("IMU calibration: the scale-factor/misalignment matrix is singular")
         for i in range(3):
             for j in range(3):
                 out[t, i, j] = A[i, j]

@@ -108,7 +108,8 @@ def test_calibration_inverts_error_model():
 def test_inverse3_matches_numpy():
     """The adjugate inverse agrees with numpy.linalg.inv to a few ulps times the condition number
     (both are backward stable; 1e-13 relative covers cond <= 1e2 at 1e-16 rounding), returns the
-    determinant, and a singular matrix gives a non-finite inverse rather than a wrong one."""
+    determinant, and a singular matrix gives a non-finite inverse rather than a wrong one (a singular
+    IMU calibration raises, as numpy.linalg.inv did)."""
     rng = np.random.default_rng(5)
     out = np.empty((3, 3))
     for M in [np.eye(3) + 0.02 * rng.normal(size=(3, 3)) for _ in range(20)] + [rng.normal(size=(3, 3)) for _ in range(20)]:
@@ -120,6 +121,8 @@ def test_inverse3_matches_numpy():
         np.testing.assert_allclose(out, np.linalg.inv(M), rtol=0, atol=1e-13 * cond * np.abs(np.linalg.inv(M)).max())
     inverse3_into(np.ones((3, 3)), out)
     assert not np.isfinite(out).all()
+    with pytest.raises(ValueError, match="singular"):
+        ImuCalibration(s_f=np.array([-1.0, 0.0, 0.0])).matrices()
 
 
 def test_rejects_bad_input():
