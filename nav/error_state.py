@@ -52,7 +52,7 @@ class Group:
     name: str
     slice: slice
     estimated: bool
-    sigma0: float
+    sigma0: float | tuple    #: initial 1-sigma, one value or one per state
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class StateLayout:
         """Diagonal P0 from every group's sigma0."""
         d = np.zeros(self.n)
         for g in self.groups:
-            d[g.slice] = g.sigma0 ** 2
+            d[g.slice] = np.asarray(g.sigma0, float) ** 2
         return np.diag(d)
 
     def zeta_name(self, camera: int, target: str) -> str:
@@ -115,7 +115,7 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
 
     def add(name, est, sigma, size=3):
         nonlocal i
-        groups.append(Group(name, slice(i, i + size), est, float(sigma)))
+        groups.append(Group(name, slice(i, i + size), est, float(sigma) if np.ndim(sigma) == 0 else tuple(sigma)))
         i += size
 
     add("dx", True, tuning.init_pos_sigma)
@@ -155,13 +155,14 @@ def gravity_gradient(x_e) -> np.ndarray:
 
 
 def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge: float = 0.0,
-                   tau_gyro: float = 0.0) -> np.ndarray:
+                   tau_gyro=0.0) -> np.ndarray:
     """Continuous-time error dynamics F (n, n) of the e-frame mechanisation (:mod:`nav.ins`)::
 
         d(dx)/dt  = dv
         d(dv)/dt  = G dx - 2 [w_ie x] dv - [(R_eb f_b) x] psi - R_eb delta_f
         d(psi)/dt = -[w_ie x] psi - R_eb (delta_w + g_w)
-        d(g_w)/dt = -g_w / tau_gyro       (Gauss-Markov gyro error, when in the layout)
+        d(g_w)/dt = -g_w / tau_gyro       (Gauss-Markov gyro error, when in the layout; per body
+                                           axis, ``tau_gyro`` a scalar or (3,))
         d(zeta)/dt = -zeta / T_c          (003 §6.3)
         d(h_e)/dt  = -h_e / tau_edge      (a constant when tau_edge is 0)
 
@@ -187,7 +188,7 @@ def error_dynamics(layout: StateLayout, x_e, R_eb, f_b, w_b, tc: float, tau_edge
             F[row, layout[name]] = -R_eb @ S
     if layout.has("gyro_gm"):
         F[ip, layout["gyro_gm"]] = -R_eb
-        F[layout["gyro_gm"], layout["gyro_gm"]] = -np.eye(3) / tau_gyro
+        F[layout["gyro_gm"], layout["gyro_gm"]] = -np.diag(1.0 / gyro_gm_taus(tau_gyro))
     for g in layout.groups:
         if g.name.startswith("zeta_"):
             F[g.slice, g.slice] = -np.eye(3) / tc
@@ -240,8 +241,8 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM, tau_w):
     the first column of accel_bias, gyro_bias, accel_scale, accel_misalignment, gyro_scale,
     gyro_misalignment, gyro_nonorthogonality and the Gauss-Markov gyro error gyro_gm (-1: absent;
     ``TRANSITION_GROUPS``),
-    ``tau_w`` the latter's correlation time [s]. The (F dt)^2/2 term is the product over the
-    navigation columns plus, for gyro_gm, ``-R dt (-dt / tau_w) / 2`` (its own decay)."""
+    ``tau_w`` (3,) the latter's correlation time per body axis [s]. The (F dt)^2/2 term is the
+    product over the navigation columns plus, for gyro_gm, ``-R dt (-dt / tau_w) / 2`` (its own decay)."""
     F = np.zeros((9, n))
     r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
     r = np.sqrt(r2)
@@ -286,9 +287,9 @@ def nav_transition(x, R, f, w, dt, cols, n, W, GM, tau_w):
         A[i, i] += 1.0
     c = cols[7]
     if c >= 0:
-        k2 = 0.5 * dt * dt / tau_w
-        for i in range(3):
-            for j in range(3):
+        for j in range(3):
+            k2 = 0.5 * dt * dt / tau_w[j]
+            for i in range(3):
                 A[6 + i, c + j] += k2 * R[i, j]
     return A
 
@@ -297,10 +298,10 @@ class TransitionBuilder:
     """Builds :class:`BlockTransition` for a layout with the compiled :func:`nav_transition` (the
     filter's form of :func:`error_dynamics` + :func:`discrete_transition`; tests check they agree)."""
 
-    def __init__(self, layout: StateLayout, tc: float, tau_edge: float = 0.0, tau_gyro: float = 0.0):
+    def __init__(self, layout: StateLayout, tc: float, tau_edge: float = 0.0, tau_gyro=0.0):
         self.n = layout.n
         self.layout = layout
-        self.tc, self.tau_edge, self.tau_gyro = tc, tau_edge, tau_gyro
+        self.tc, self.tau_edge, self.tau_gyro = tc, tau_edge, gyro_gm_taus(tau_gyro)
         self.edge = edge_gm_indices(layout, tau_edge)
         self.gyro = gyro_gm_indices(layout)
         self.cols = transition_columns(layout)
@@ -312,7 +313,7 @@ class TransitionBuilder:
     def __call__(self, x_e, R_eb, f_b, w_b, dt) -> BlockTransition:
         from nav.earth import GM, OMEGA_E
         A = nav_transition(np.asarray(x_e, float), np.ascontiguousarray(R_eb), np.asarray(f_b, float),
-                            np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM, float(self.tau_gyro))
+                            np.asarray(w_b, float), float(dt), self.cols, self.n, OMEGA_E, GM, self.tau_gyro)
         d = np.ones(self.n)
         d[self.zeta] = np.exp(-dt / self.tc)
         if self.edge.size:
@@ -326,6 +327,14 @@ def transition_columns(layout: StateLayout) -> np.ndarray:
     """(8,) int64 first column of each of ``TRANSITION_GROUPS`` (-1: absent), as
     :func:`nav_transition` reads them."""
     return np.array([layout[nm].start if layout.has(nm) else -1 for nm in TRANSITION_GROUPS], dtype=np.int64)
+
+
+def gyro_gm_taus(tau) -> np.ndarray:
+    """(3,) correlation times of the Gauss-Markov gyro error per body axis [s] from a scalar or
+    three values (:attr:`nav.tuning.Tuning.gyro_gm_tau_s`); inf where 0 (unused, no state)."""
+    t = np.broadcast_to(np.asarray(tau, float), (3,)).copy()
+    t[t == 0.0] = np.inf
+    return t
 
 
 def gyro_gm_indices(layout: StateLayout) -> np.ndarray:

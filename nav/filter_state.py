@@ -26,15 +26,13 @@ columns in the transition if it is not a constant, and a feedback row in :func:`
 """
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
 from nav import ins
 from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R, skew
 from nav.earth import GM, OMEGA_E
-from nav.error_state import (N_TRANSITION, StateLayout, edge_gm_indices, gyro_gm_indices, nav_transition, propagate_covariance,
+from nav.error_state import (N_TRANSITION, StateLayout, edge_gm_indices, gyro_gm_indices, gyro_gm_taus, nav_transition, propagate_covariance,
                              transition_columns)
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration, affine_into
 from nav.rotation import matrix_to_quat, quat_to_matrix
@@ -107,6 +105,9 @@ class FilterState:
         zeta_groups = [g for g in layout.groups if g.name.startswith("zeta_")]
         nz = len(zeta_groups)
         self.gyro_gm = gyro_gm_indices(layout)
+        self.gyro_tau = gyro_gm_taus(tuning.gyro_gm_tau_s)
+        #: (1 / tau, sigma^2) per Gauss-Markov gyro state (:meth:`_gyro_decay`)
+        self.gyro_decay = (1.0 / self.gyro_tau, tuning.gyro_gm_sigmas() ** 2)
         self.fed = np.zeros(N_CAL + 9 * n_cam + 3 * nz + 2 * n_cam + self.gyro_gm.size)
         self.cal_arr = self.fed[:N_CAL].reshape(len(CAL_FIELDS), 3)
         self.R_bc = self.fed[N_CAL:N_CAL + 9 * n_cam].reshape(n_cam, 3, 3)
@@ -122,6 +123,9 @@ class FilterState:
         self.edge_gm = edge_gm_indices(layout, tuning.edge_height_tau_s)
         self.edge_gm_cams = np.array([int(g.name[4:]) for g in layout.groups if g.name.startswith("h_e_")]
                                      if self.edge_gm.size else [], np.int64)
+        ne = self.edge_gm.size
+        self.edge_decay = (np.full(ne, 1.0 / tuning.edge_height_tau_s if ne else 0.0),
+                           np.full(ne, tuning.edge_height.sigma ** 2))
         self.calibration = ImuCalibration(**{nm: self.cal_arr[i] for i, nm in enumerate(CAL_FIELDS)})
         self.zeta_index = {g.name: i for i, g in enumerate(zeta_groups)}
         self.P_c = np.tile(np.eye(3) * tuning.gm_default_sigma ** 2, (nz, 1, 1))
@@ -147,34 +151,25 @@ class FilterState:
     def propagate(self, ts, fw, traj, k: int, k_end: int, avg: bool, A_out, d_out) -> None:
         """The INS and the covariance from IMU sample k to k_end (:func:`propagate_block`)."""
         propagate_block(self.nav, self.cal_m, ts, fw, traj, k, k_end, avg, self.model, self.gm_idx, self.P_c,
-                        self.zeta, self.P, A_out, d_out, self.tuning.gyro_gm_tau_s)
+                        self.zeta, self.P, A_out, d_out, self.gyro_tau)
         if self.edge_gm.size:
             self._edge_decay(ts[k_end] - ts[k], d_out)
         if self.gyro_gm.size:
             self._gyro_decay(ts[k_end] - ts[k], d_out)
 
     def _gyro_decay(self, dt: float, d_out) -> None:
-        """The Gauss-Markov gyro error over ``dt`` [s] (:meth:`_gm_decay`; its columns in the
+        """The Gauss-Markov gyro error over ``dt`` [s] (:func:`gm_decay_kernel`; its columns in the
         attitude rows are the kernel's); the fed-back estimate decays by phi and the INS applies it."""
-        phi = self._gm_decay(self.gyro_gm, dt, self.tuning.gyro_gm_tau_s, self.tuning.gyro_gm.sigma, d_out)
-        self.gw_hat *= phi
+        gm_decay_kernel(self.P, self.gyro_gm, dt, *self.gyro_decay, d_out)
+        self.gw_hat *= d_out[self.gyro_gm]
         biases_into_calibration(self.fed, self.fb, self.cal_m)
 
     def _edge_decay(self, dt: float, d_out) -> None:
-        """The Gauss-Markov edge heights over ``dt`` [s] (:meth:`_gm_decay`); the estimates relax
+        """The Gauss-Markov edge heights over ``dt`` [s] (:func:`gm_decay_kernel`); the estimates relax
         towards their initial values."""
-        phi = self._gm_decay(self.edge_gm, dt, self.tuning.edge_height_tau_s, self.tuning.edge_height.sigma, d_out)
+        gm_decay_kernel(self.P, self.edge_gm, dt, *self.edge_decay, d_out)
         cams = self.edge_gm_cams
-        self.edge_hat[cams] = self.edge0[cams] + phi * (self.edge_hat[cams] - self.edge0[cams])
-
-    def _gm_decay(self, i, dt: float, tau: float, sigma: float, d_out) -> float:
-        """First-order Gauss-Markov states ``i`` over ``dt`` [s]: their rows of Phi are ``phi e_i``
-        (the block's propagation left them at identity), so ``Phi P Phi^T`` is the block's result
-        with those rows and columns scaled by phi, plus the driving noise ``(1 - phi^2) sigma^2``
-        (the exact discrete form of the PSD ``2 sigma^2 / tau``). Returns phi."""
-        phi = math.exp(-dt / tau)
-        gm_decay_kernel(self.P, i, phi, (1.0 - phi * phi) * sigma ** 2, d_out)
-        return phi
+        self.edge_hat[cams] = self.edge0[cams] + d_out[self.edge_gm] * (self.edge_hat[cams] - self.edge0[cams])
 
     def snapshot(self):
         """Copies of what an update changes: covariance, nominal state, fed-back estimates."""
@@ -282,17 +277,24 @@ def feedback_kernel(dx, nav, fed, fb):
 
 
 @nb.njit(cache=True)
-def gm_decay_kernel(P, idx, phi, q, d_out):
-    """Rows and columns ``idx`` of ``P`` scaled by ``phi`` (in place), ``q`` added to their
-    diagonal, ``d_out[idx] = phi`` (:meth:`FilterState._gm_decay`)."""
+def gm_decay_kernel(P, idx, dt, rate, var, d_out):
+    """First-order Gauss-Markov states ``idx`` over ``dt`` [s], each with its ``rate = 1 / tau``
+    [1/s] and stationary variance ``var``: their rows of Phi are ``phi e_i``, ``phi = exp(-dt /
+    tau)`` (the block's propagation left them at identity), so ``Phi P Phi^T`` is the block's
+    result with those rows and columns scaled by phi (in place), plus the driving noise
+    ``(1 - phi^2) var`` on the diagonal (the exact discrete form of the PSD ``2 var / tau``);
+    ``d_out[idx] = phi``."""
     n = P.shape[0]
-    for i in idx:
+    for m in range(idx.size):
+        i = idx[m]
+        phi = np.exp(-dt * rate[m])
         for j in range(n):
             P[i, j] *= phi
             P[j, i] *= phi
-    for i in idx:
-        P[i, i] += q
         d_out[i] = phi
+    for m in range(idx.size):
+        i = idx[m]
+        P[i, i] += (1.0 - d_out[i] * d_out[i]) * var[m]
 
 
 @nb.njit(cache=True)

@@ -34,6 +34,8 @@ import re
 import tomllib
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 G0 = 9.80665  #: standard gravity [m/s^2], converts mg
 MODES = ("E", "C", "off")
 #: the table 3 white noise of the IMU and its bracketed tuning extra, [mg/sqrt(Hz)], [deg/sqrt(h)]
@@ -225,6 +227,11 @@ class Tuning:
         """Copy with fields replaced (dataclasses.replace)."""
         return replace(self, **kw)
 
+    def gyro_gm_sigmas(self) -> np.ndarray:
+        """(3,) stationary 1-sigma of the Gauss-Markov gyro error per body axis [rad/s]
+        (``gyro_gm.sigma``: one value or three)."""
+        return np.broadcast_to(np.asarray(self.gyro_gm.sigma, float), (3,)).copy()
+
     def vector_white_for(self, target: str) -> float:
         """White noise (1 sigma, unit-vector units) of ``target``'s vectors."""
         return dict(self.vector_white_by_target).get(target, self.vector_white)
@@ -257,11 +264,27 @@ def _group(d: dict, key: str, unit_key: str, scale: float, default: StateGroupTu
     if mode not in MODES:
         raise ValueError(f"tuning [states.{key}] mode: expected one of {MODES}, got {mode!r}")
     sigma = g.get(unit_key, None)
-    sigma = default.sigma if sigma is None else _positive(sigma, f"[states.{key}] {unit_key}") * scale
+    if sigma is not None:
+        sigma = _scaled(_positive_axes(sigma, f"[states.{key}] {unit_key}") if key in _PER_AXIS
+                        else _positive(sigma, f"[states.{key}] {unit_key}"), scale)
     unknown = set(g) - {"mode", unit_key}
     if unknown:
         raise ValueError(f"tuning [states.{key}]: unknown keys {sorted(unknown)}; expected 'mode', '{unit_key}'")
-    return StateGroupTuning(mode, float(sigma))
+    return StateGroupTuning(mode, default.sigma if sigma is None else sigma)
+
+
+def _positive_axes(v, name: str):
+    """A non-negative number, or a list of three (body x, y, z) as a tuple."""
+    if isinstance(v, list):
+        if len(v) != 3:
+            raise ValueError(f"tuning {name}: expected a number or three (body x, y, z), got {v!r}")
+        return tuple(_positive(x, name) for x in v)
+    return _positive(v, name)
+
+
+def _scaled(v, factor: float):
+    """``v`` (a number or a tuple) times ``factor``."""
+    return tuple(x * factor for x in v) if isinstance(v, tuple) else v * factor
 
 
 def _positive(v, name: str) -> float:
@@ -287,6 +310,8 @@ _GROUPS = {  # key: (unit key, factor to SI)
     "edge_height": ("sigma_km", 1e3),
     "gyro_gm": ("sigma_deg_h", math.radians(1.0) / 3600.0),
 }
+#: groups whose sigma and correlation time may be given per body axis (a list of three)
+_PER_AXIS = {"gyro_gm"}
 
 
 #: TOML key -> (Tuning field, factor to SI) of the scalar entries, per table; values must be
@@ -417,8 +442,8 @@ def _group_tau(states: dict, kw: dict, group: str, field_: str, nonzero: bool = 
     if not isinstance(g, dict) or "correlation_time_s" not in g:
         return states
     name = f"[states.{group}] correlation_time_s"
-    kw[field_] = _positive(g["correlation_time_s"], name)
-    if nonzero and not kw[field_] > 0:
+    kw[field_] = (_positive_axes if group in _PER_AXIS else _positive)(g["correlation_time_s"], name)
+    if nonzero and not min(np.atleast_1d(kw[field_])) > 0:
         raise ValueError(f"tuning {name}: expected a positive number, got {g['correlation_time_s']!r}")
     return {**states, group: {k: v for k, v in g.items() if k != "correlation_time_s"}}
 

@@ -29,6 +29,23 @@ def test_tuning_table():
     assert not lay.estimated_mask[lay["gyro_gm"]].any()
 
 
+def test_tuning_per_axis():
+    """sigma_deg_h and correlation_time_s take three values (body x, y, z): the layout's P0 and
+    Tuning.gyro_gm_sigmas hold them per axis, a scalar gives three equal ones; a list of another
+    length is refused naming the key."""
+    t = tuning_from_toml('[states.gyro_gm]\nmode = "C"\nsigma_deg_h = [1, 18, 20]\ncorrelation_time_s = [0.3, 1.3, 1.7]\n')
+    np.testing.assert_allclose(t.gyro_gm_sigmas(), np.array([1, 18, 20]) * DEG_H, rtol=1e-15)
+    assert t.gyro_gm_tau_s == (0.3, 1.3, 1.7)
+    lay = build_layout(t, 1)
+    np.testing.assert_allclose(np.diag(lay.initial_covariance())[lay["gyro_gm"]], (np.array([1, 18, 20]) * DEG_H) ** 2,
+                               rtol=1e-15)
+    np.testing.assert_array_equal(_gm_tuning().gyro_gm_sigmas(), np.full(3, GM_SIGMA_DEG_H * DEG_H))
+    with pytest.raises(ValueError, match=r"gyro_gm\] sigma_deg_h: expected a number or three"):
+        tuning_from_toml('[states.gyro_gm]\nmode = "C"\nsigma_deg_h = [1, 2]\n')
+    with pytest.raises(ValueError, match=r"gyro_gm\] correlation_time_s"):
+        tuning_from_toml('[states.gyro_gm]\nmode = "C"\ncorrelation_time_s = [1, 0, 2]\n')
+
+
 def _gm_tuning(mode="E"):
     return Tuning().with_(gyro_gm=StateGroupTuning(mode, GM_SIGMA_DEG_H * DEG_H), gyro_gm_tau_s=GM_TAU_S)
 
@@ -52,11 +69,33 @@ def test_transition_matches_expm():
     np.testing.assert_allclose(np.diag(Phi[ig, ig]), math.exp(-dt / GM_TAU_S), rtol=1e-15)
 
 
-def test_propagation_and_feedback():
+def test_transition_per_axis():
+    """Three correlation times: the compiled transition equals the reference discrete_transition
+    (g_w_dot = -diag(1/tau) g_w) to 1e-15 and its g_w entries are exp(-dt/tau_i)."""
+    taus = (0.3, 1.3, 100.0)
+    tun = _gm_tuning().with_(gyro_gm_tau_s=taus)
+    lay = build_layout(tun, 1)
+    x = np.array([6.6e6, 1e5, 2e5])
+    R = expm(np.cross(np.eye(3), [0.3, -0.2, 0.5]))
+    f, w, dt = np.array([0.3, -0.1, 9.0]), np.radians([5.0, -3.0, 2.0]), 0.05
+    F = error_dynamics(lay, x, R, f, w, 20.0, 0.0, taus)
+    Phi = discrete_transition(lay, F, dt)
+    tr = TransitionBuilder(lay, 20.0, 0.0, taus)(x, R, f, w, dt)
+    np.testing.assert_allclose(tr.full(), Phi, atol=1e-15)
+    ig = lay["gyro_gm"]
+    np.testing.assert_allclose(np.diag(Phi[ig, ig]), np.exp(-dt / np.array(taus)), rtol=1e-15)
+
+
+@pytest.mark.parametrize("per_axis", [False, True])
+def test_propagation_and_feedback(per_axis):
     """One 0.1 s block: P equals Phi P0 Phi^T + q dt + (1 - phi^2) sigma^2 on g_w with Phi from the
     block's recorded transition (closed form of the first-order Gauss-Markov process); the
     estimate decays by phi and the INS subtracts b_w + g_w (its calibration row)."""
+    sig = np.array([1.0, 18.0, 20.0]) * DEG_H if per_axis else np.full(3, GM_SIGMA_DEG_H * DEG_H)
+    tau = np.array([0.3, 1.3, GM_TAU_S]) if per_axis else np.full(3, GM_TAU_S)
     tun = _gm_tuning().with_(vector_gm_mode="off")
+    if per_axis:
+        tun = tun.with_(gyro_gm=StateGroupTuning("E", tuple(sig)), gyro_gm_tau_s=tuple(tau))
     lay = build_layout(tun, 1)
     n = lay.n
     B = np.random.default_rng(1).normal(size=(n, n)) * 1e-3
@@ -70,12 +109,12 @@ def test_propagation_and_feedback():
     A, d = np.empty((9, n)), np.empty(n)
     st.propagate(np.array([0.0, 0.1]), fw, np.empty((2, 10)), 0, 1, True, A, d)
     ig = lay["gyro_gm"]
-    phi = math.exp(-0.1 / GM_TAU_S)
+    phi = np.exp(-0.1 / tau)
     np.testing.assert_allclose(d[ig], phi, rtol=1e-15)
     Phi = np.diag(d)
     Phi[:9] = A
     P_exp = Phi @ P0 @ Phi.T + np.diag(st.model[3:] * 0.1)
-    P_exp[ig, ig] += (1 - phi ** 2) * (GM_SIGMA_DEG_H * DEG_H) ** 2 * np.eye(3)
+    P_exp[ig, ig] += np.diag((1 - phi ** 2) * sig ** 2)
     np.testing.assert_allclose(st.P, P_exp, rtol=1e-12, atol=1e-12 * np.abs(P_exp).max())
     np.testing.assert_allclose(st.gw_hat, phi * np.array([1e-5, -2e-5, 3e-5]), rtol=1e-15)
     np.testing.assert_allclose(st.cal_m[1, 3], st.cal_arr[1] + st.gw_hat, rtol=1e-15)

@@ -51,6 +51,8 @@ def write_study(tmp_path, **kw):
 def test_library_studies_load():
     """The example studies parse and every variant builds (names checked against the dataclasses)."""
     assert load_study("atek-coast-mc").n_runs == 200
+    sim = load_study("atek-sim-mc")
+    assert sim.n_runs == 200 and sim.tuning.endswith("atek-sim.toml")
     mis = load_study("atek-mistuned")
     assert [v.label for v in mis.variants][0] == "matched" and len(mis.variants) == 5
     sweep = load_study("atek-camera-sweep")

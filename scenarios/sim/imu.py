@@ -124,14 +124,17 @@ def draw_imu_errors(cfg: ImuConfig, rng: np.random.Generator) -> ImuErrors:
     return ImuErrors(gb, ab, gs, as_, gm, am)
 
 
-def gauss_markov_drift(n: int, dt: float, sigma: float, tau: float, rng: np.random.Generator) -> np.ndarray:
+def gauss_markov_drift(n: int, dt: float, sigma, tau, rng: np.random.Generator) -> np.ndarray:
     """(n, 3) first-order Gauss-Markov sequence of stationary 1-sigma ``sigma`` and correlation time
-    ``tau`` [s] sampled every ``dt`` [s], starting from its stationary distribution (module docstring)."""
+    ``tau`` [s] (each one value or one per axis) sampled every ``dt`` [s], starting from its
+    stationary distribution (module docstring)."""
     from scipy.signal import lfilter
-    phi = np.exp(-dt / tau)
+    phi = np.exp(-dt / np.asarray(tau, float))
     e = rng.normal(0.0, sigma, (n, 3))
     e[1:] *= np.sqrt(1.0 - phi * phi)
-    return lfilter([1.0], [1.0, -phi], e, axis=0)
+    if phi.ndim == 0:
+        return lfilter([1.0], [1.0, -phi], e, axis=0)
+    return np.stack([lfilter([1.0], [1.0, -p], e[:, i]) for i, p in enumerate(phi)], axis=1)
 
 
 def noise_sigmas(cfg: ImuConfig, output: str, dt: float) -> tuple[float, float]:
@@ -191,7 +194,7 @@ def simulate_imu(truth: Truth, cfg: ImuConfig, rng: np.random.Generator,
     """IMU output of a flight: ideal samples, turn-on errors and noise drawn from ``rng``."""
     ideal = ideal_imu(truth, cfg.rate_hz, cfg.output, cfg.sample)
     errors = draw_imu_errors(cfg, rng)
-    if with_errors and cfg.gyro_gm_deg_h > 0:
+    if with_errors and np.any(np.asarray(cfg.gyro_gm_deg_h) > 0):
         errors.gyro_gm = gauss_markov_drift(ideal.t.size, ideal.dt, np.radians(cfg.gyro_gm_deg_h) / 3600.0,
                                             cfg.gyro_gm_tau_s, rng)
     if not with_errors:

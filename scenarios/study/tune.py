@@ -83,7 +83,7 @@ from typing import Callable
 
 import numpy as np
 
-from nav.error_state import TRANSITION_GROUPS
+from nav.error_state import TRANSITION_GROUPS, gyro_gm_taus
 from nav.likelihood import fisher_information, innovation_set, negative_log_likelihood, score
 from nav.navigator import GpsData, VectorData, run
 from nav.schmidt import GATED, REASONS
@@ -112,6 +112,8 @@ VECTOR_KINDS = ("hor", "sun", "moon")
 GATE_REASON = REASONS[GATED]   #: an innovation's reason when the chi-square gate rejected it
 AIDING = {"gps_pos", "gps_vel", "hor", "sun", "moon"}
 RAD_S_TO_DEG_RTH = math.degrees(1.0) * 60.0   #: rad/sqrt(s) -> deg/sqrt(h)
+DEG_H = math.radians(1.0) / 3600.0    #: 1 deg/h in rad/s
+AXES = "xyz"   #: the body axes of the per-axis parameters (``gyro_gm_sigma_x`` ...)
 
 
 @dataclass(frozen=True)
@@ -126,9 +128,14 @@ class Param:
     toml: tuple
     applies: Callable = lambda t: None   #: a reason the tuning does not use it, or None
     to_unit: float = 1.0                 #: SI -> the unit shown
+    #: one body axis of a per-axis entry: the tuning's three values (SI) the TOML list is written from
+    axes: Callable | None = None
 
-    def entries(self, value: float) -> list:
-        """``[(table, key, value)]`` of the TOML for the SI value."""
+    def entries(self, value: float, tuned: Tuning | None = None) -> list:
+        """``[(table, key, value)]`` of the TOML for the SI value; a per-axis parameter writes the
+        list of ``tuned``'s three values."""
+        if self.axes is not None and tuned is not None:
+            return [(tb, key, [x * f for x in self.axes(tuned)]) for tb, key, f in self.toml]
         return [(tb, key, value * f if f is not None else 0.0) for tb, key, f in self.toml]
 
 
@@ -176,16 +183,44 @@ def _params() -> dict:
                              lambda t, v: replace(t, accel_white=v), frozenset(AIDING),
                              (("imu", "accel_white_noise_mg_rthz", 1.0 / (1e-3 * G0)),
                               ("imu", "accel_white_noise_extra_mg_rthz", None)), to_unit=1.0 / (1e-3 * G0))
-    p["gyro_bias"] = _group_param("gyro_bias", "deg/h", "sigma_deg_h", math.radians(1.0) / 3600.0)
+    p["gyro_bias"] = _group_param("gyro_bias", "deg/h", "sigma_deg_h", DEG_H)
     p["accel_bias"] = _group_param("accel_bias", "mg", "sigma_mg", 1e-3 * G0)
-    p["gyro_gm_sigma"] = _group_param("gyro_gm_sigma", "deg/h", "sigma_deg_h", math.radians(1.0) / 3600.0, "gyro_gm")
+    p["gyro_gm_sigma"] = _group_param("gyro_gm_sigma", "deg/h", "sigma_deg_h", DEG_H, "gyro_gm")
     p["gyro_gm_tau"] = Param("gyro_gm_tau", "s", lambda t: t.gyro_gm_tau_s, lambda t, v: replace(t, gyro_gm_tau_s=v),
                              frozenset(AIDING), (("states.gyro_gm", "correlation_time_s", 1.0),),
                              _group_used("gyro_gm"))
+    for i, ax in enumerate(AXES):
+        p[f"gyro_gm_sigma_{ax}"] = Param(f"gyro_gm_sigma_{ax}", "deg/h", lambda t, i=i: float(t.gyro_gm_sigmas()[i]),
+                                         lambda t, v, i=i: replace(t, gyro_gm=replace(
+                                             t.gyro_gm, sigma=_axis_set(t.gyro_gm_sigmas(), i, v))),
+                                         frozenset(AIDING), (("states.gyro_gm", "sigma_deg_h", 1.0 / DEG_H),),
+                                         _group_used("gyro_gm"), 1.0 / DEG_H, lambda t: t.gyro_gm_sigmas())
+        p[f"gyro_gm_tau_{ax}"] = Param(f"gyro_gm_tau_{ax}", "s", lambda t, i=i: float(gyro_gm_taus(t.gyro_gm_tau_s)[i]),
+                                       lambda t, v, i=i: replace(t, gyro_gm_tau_s=_axis_set(
+                                           gyro_gm_taus(t.gyro_gm_tau_s), i, v)),
+                                       frozenset(AIDING), (("states.gyro_gm", "correlation_time_s", 1.0),),
+                                       _group_used("gyro_gm"), axes=lambda t: gyro_gm_taus(t.gyro_gm_tau_s))
     p["gps_noise_scale"] = Param("gps_noise_scale", "x", lambda t: t.gps_noise_scale,
                                  lambda t, v: replace(t, gps_noise_scale=v), frozenset({"gps_pos", "gps_vel"}),
                                  (("gps", "noise_scale", 1.0),))
     return p
+
+
+def _axis_set(values, i: int, v: float) -> tuple:
+    """``values`` (3,) as a tuple with element ``i`` set to ``v``."""
+    out = [float(x) for x in values]
+    out[i] = float(v)
+    return tuple(out)
+
+
+def per_axis(names, base: Tuning) -> list:
+    """``names`` with ``gyro_gm_sigma`` / ``gyro_gm_tau`` replaced by their three body-axis
+    parameters where ``base`` gives that value per axis (``[states.gyro_gm]`` lists)."""
+    split = {"gyro_gm_sigma": np.ndim(base.gyro_gm.sigma) > 0, "gyro_gm_tau": np.ndim(base.gyro_gm_tau_s) > 0}
+    out = []
+    for n in names:
+        out += [f"{n}_{ax}" for ax in AXES] if split.get(n) else [n]
+    return out
 
 
 #: every tunable parameter by name (the per-camera P_c scales are built by :func:`param`)
@@ -614,7 +649,7 @@ def available(names, base: Tuning, kinds: set, numbers=(), *, cameras: bool = Tr
     seen = {k for k in kinds if isinstance(k, tuple)}
     have = set(kinds) | {k[0] for k in seen}
     ok, why = [], {}
-    for n in per_camera(names, seen if cameras else set(), numbers):
+    for n in per_camera(per_axis(names, base), seen if cameras else set(), numbers):
         p = param(n, numbers)
         reason = p.applies(base)
         if reason is None and not (p.needs & have):
@@ -824,6 +859,15 @@ def _toml_value(v) -> str:
     return str(v)
 
 
+def _comment(comments: dict, where: tuple, e: Estimate, text: str) -> None:
+    """The comment of a TOML entry; a per-axis parameter's joins those of the other axes."""
+    if e.name[-2:] in tuple(f"_{ax}" for ax in AXES) and param(e.name).axes is not None:
+        text = f"{e.name[-1]}: {text}"
+        if where in comments:
+            text = f"{comments[where]}; {text}"
+    comments[where] = text
+
+
 def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: str = "") -> str:
     """The tuning file: the base file's overrides with the identified estimates on top, each
     commented with its standard error; the unidentified parameters listed in comments."""
@@ -841,18 +885,18 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
         comments[(tb, key)] = why
     for e in result.estimates:
         if e.at_bound:
-            for tb, key, val in param(e.name).entries(e.value):
+            for tb, key, val in param(e.name).entries(e.value, result.tuning):
                 tables.setdefault(tb, {})[key] = val
-                comments[(tb, key)] = f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}"
+                _comment(comments, (tb, key), e, f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}")
             continue
         if not e.estimated:
             lines.append(f"# {e.name}: not identified ({e.reason}); kept at {e.prior * e.to_unit:.4g} {e.unit}")
             continue
         what = "ML estimate" if e.identified else "ML estimate, WEAKLY identified (3 SE > 30 %)"
-        for tb, key, val in param(e.name).entries(e.value):
+        for tb, key, val in param(e.name).entries(e.value, result.tuning):
             tables.setdefault(tb, {})[key] = val
-            comments[(tb, key)] = (f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
-                                   f"prior {e.prior * e.to_unit:.4g} {e.unit}")
+            _comment(comments, (tb, key), e, f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
+                                              f"prior {e.prior * e.to_unit:.4g} {e.unit}")
     for tb in sorted(tables):
         lines += ["", f"[{tb}]"]
         for key, val in tables[tb].items():
