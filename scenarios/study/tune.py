@@ -859,10 +859,11 @@ def _toml_value(v) -> str:
     return str(v)
 
 
-def _comment(comments: dict, where: tuple, e: Estimate, text: str) -> None:
-    """The comment of a TOML entry; a per-axis parameter's joins those of the other axes."""
-    if e.name[-2:] in tuple(f"_{ax}" for ax in AXES) and param(e.name).axes is not None:
-        text = f"{e.name[-1]}: {text}"
+def _comment(comments: dict, where: tuple, p: Param, text: str) -> None:
+    """The comment of a TOML entry; a per-axis parameter's (its name ends in the axis) joins
+    those of the other axes."""
+    if p.axes is not None:
+        text = f"{p.name[-1]}: {text}"
         if where in comments:
             text = f"{comments[where]}; {text}"
     comments[where] = text
@@ -884,18 +885,19 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
         tables.setdefault(tb, {})[key] = val
         comments[(tb, key)] = why
     for e in result.estimates:
+        p = param(e.name)
         if e.at_bound:
-            for tb, key, val in param(e.name).entries(e.value, result.tuning):
+            for tb, key, val in p.entries(e.value, result.tuning):
                 tables.setdefault(tb, {})[key] = val
-                _comment(comments, (tb, key), e, f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}")
+                _comment(comments, (tb, key), p, f"ML estimate {e.reason}; prior {e.prior * e.to_unit:.4g} {e.unit}")
             continue
         if not e.estimated:
             lines.append(f"# {e.name}: not identified ({e.reason}); kept at {e.prior * e.to_unit:.4g} {e.unit}")
             continue
         what = "ML estimate" if e.identified else "ML estimate, WEAKLY identified (3 SE > 30 %)"
-        for tb, key, val in param(e.name).entries(e.value, result.tuning):
+        for tb, key, val in p.entries(e.value, result.tuning):
             tables.setdefault(tb, {})[key] = val
-            _comment(comments, (tb, key), e, f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
+            _comment(comments, (tb, key), p, f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
                                               f"prior {e.prior * e.to_unit:.4g} {e.unit}")
     for tb in sorted(tables):
         lines += ["", f"[{tb}]"]
