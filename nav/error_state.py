@@ -126,7 +126,7 @@ def build_layout(tuning: Tuning, n_cameras: int) -> StateLayout:
         if g.on:
             add(name, g.estimated, g.sigma)
     if tuning.gyro_gm.on:
-        add("gyro_gm", tuning.gyro_gm.estimated, tuning.gyro_gm.sigma)
+        add("gyro_gm", tuning.gyro_gm.estimated, tuple(tuning.gyro_gm_sigmas()))
     if n_cameras:
         if tuning.camera_misalignment.on:
             for k in range(n_cameras):

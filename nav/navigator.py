@@ -66,6 +66,7 @@ from nav import ins
 from nav.error_state import BlockTransition, StateLayout, build_layout
 from nav.filter_state import FilterState
 from nav.imu_errors import ImuCalibration
+from nav.quantisation import quantisation_rates
 from nav.recovery import Recovery
 from nav.rotation import angle_between, matrix_to_quat, matrix_to_rotvec, triad
 from nav.schmidt import symmetrize
@@ -460,6 +461,9 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         raise ValueError(f"imu.sample: expected 'point' or 'average', got {imu.sample!r}")
     fw = np.empty((t_ns.size, 2, 3))
     fw[:, 0], fw[:, 1] = f_b, w_b
+    if layout.has("gyro_gm") and tuning.gyro_gm_quantum > 0:
+        st.follow_rates(quantisation_rates(ts, w_b, tuning.gyro_gm_quantum, tuning.gyro_gm_quantum_scale,
+                                           tuning.gyro_gm_quantum_window_s))
     rcv = Recovery(ts, t_ns, tuning, sources)
     loop = _Loop(st, rec, sources, events, ev_idx.tolist(), t_ns, ts, fw, imu.sample == "average", rejected, rcv)
     loop.run(max_block)

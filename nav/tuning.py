@@ -109,6 +109,15 @@ class Tuning:
         ``correlation_time_s``.
     gyro_gm_tau_s : float
         Correlation time of ``g_w`` [s]: ``phi = exp(-dt/tau)``, driving noise PSD ``2 sigma^2 / tau``.
+    gyro_gm_quantum : float
+        Step ``q`` of a rate gyro's output [rad/s]; 0: none. When positive, ``g_w`` is that
+        output's rounding (:mod:`nav.quantisation`): stationary sigma ``q / sqrt(12)`` per axis
+        (in place of ``gyro_gm.sigma``) and a correlation time ``q / (c |d omega / dt|)`` from the
+        measured rates (in place of ``gyro_gm_tau_s``). TOML ``[states.gyro_gm] quantum_dps``.
+    gyro_gm_quantum_scale : float
+        ``c`` of that correlation time; TOML ``[states.gyro_gm] quantum_scale``.
+    gyro_gm_quantum_window_s : float
+        Half width of the window of the rate's slope [s]; TOML ``[states.gyro_gm] quantum_window_s``.
     vector_white : float
         White noise (1 sigma, per axis, unit-vector units) added to eq. (49) as Q_tuning.
     vector_gm_mode : str
@@ -194,6 +203,9 @@ class Tuning:
     edge_height_edge: str = "limb"
     gyro_gm: StateGroupTuning = StateGroupTuning("off", math.radians(5.0) / 3600.0)
     gyro_gm_tau_s: float = 100.0
+    gyro_gm_quantum: float = 0.0
+    gyro_gm_quantum_scale: float = 24.0
+    gyro_gm_quantum_window_s: float = 5.0
     vector_white: float = 0.005
     vector_gm_mode: str = "C"
     correlation_time_s: float = 20.0
@@ -229,7 +241,10 @@ class Tuning:
 
     def gyro_gm_sigmas(self) -> np.ndarray:
         """(3,) stationary 1-sigma of the Gauss-Markov gyro error per body axis [rad/s]
-        (``gyro_gm.sigma``: one value or three)."""
+        (``gyro_gm.sigma``: one value or three; with ``gyro_gm_quantum`` the rounding's
+        ``q / sqrt(12)``)."""
+        if self.gyro_gm_quantum > 0:
+            return np.full(3, self.gyro_gm_quantum / math.sqrt(12.0))
         return np.broadcast_to(np.asarray(self.gyro_gm.sigma, float), (3,)).copy()
 
     def vector_white_for(self, target: str) -> float:
@@ -460,6 +475,37 @@ def _edge_choice(states: dict, kw: dict) -> dict:
     return {**states, "edge_height": {k: v for k, v in g.items() if k != "edge"}}
 
 
+#: ``[states.gyro_gm]`` keys of the rate-quantisation form -> (Tuning field, factor to SI)
+_QUANTUM_KEYS = {"quantum_dps": ("gyro_gm_quantum", math.radians(1.0)),
+                 "quantum_scale": ("gyro_gm_quantum_scale", 1.0),
+                 "quantum_window_s": ("gyro_gm_quantum_window_s", 1.0)}
+
+
+def _gyro_quantum(states: dict, kw: dict) -> dict:
+    """The rate-quantisation form of ``[states.gyro_gm]`` (``quantum_dps``, optionally
+    ``quantum_scale``, ``quantum_window_s``; each positive) into ``kw``; the states without those
+    keys. With ``quantum_dps`` the sigma and the correlation time follow from it and the rates, so
+    ``sigma_deg_h`` and ``correlation_time_s`` are refused beside it."""
+    g = states.get("gyro_gm")
+    if not isinstance(g, dict) or not set(g) & set(_QUANTUM_KEYS):
+        return states
+    if "quantum_dps" not in g:
+        raise ValueError(f"tuning [states.gyro_gm] {sorted(set(g) & set(_QUANTUM_KEYS))[0]}: "
+                         "needs quantum_dps (the gyro's rate step)")
+    both = sorted({"sigma_deg_h", "correlation_time_s"} & set(g))
+    if both:
+        raise ValueError(f"tuning [states.gyro_gm] {both[0]}: not with quantum_dps, which sets the sigma "
+                         "(q / sqrt(12)) and the correlation time (from the rates)")
+    for key, (field_, factor) in _QUANTUM_KEYS.items():
+        if key in g:
+            x = _positive(g[key], f"[states.gyro_gm] {key}")
+            if x == 0:
+                raise ValueError(f"tuning [states.gyro_gm] {key}: must be > 0")
+            kw[field_] = x * factor
+    sigma_deg_h = math.degrees(kw["gyro_gm_quantum"]) * 3600.0 / math.sqrt(12.0)
+    return {**states, "gyro_gm": {**{k: v for k, v in g.items() if k not in _QUANTUM_KEYS}, "sigma_deg_h": sigma_deg_h}}
+
+
 def tuning_from_dict(d: dict) -> Tuning:
     """Build a :class:`Tuning` from a dict of overrides shaped like a tuning TOML file (tables
     ``[imu]``, ``[states.<group>]``, ``[vectors]``, ``[initial]``, ``[filter]``, ``[recovery]``, ``[gps]``; units in the key
@@ -501,6 +547,7 @@ def tuning_from_dict(d: dict) -> Tuning:
         raise ValueError(f"tuning [states]: unknown groups {sorted(unknown)}; expected {sorted(_GROUPS)}")
     states = _group_tau(states, kw, "edge_height", "edge_height_tau_s")
     states = _edge_choice(states, kw)
+    states = _gyro_quantum(states, kw)
     states = _group_tau(states, kw, "gyro_gm", "gyro_gm_tau_s", nonzero=True)
     for key, (unit_key, scale) in _GROUPS.items():
         kw[key] = _group(states, key, unit_key, scale, getattr(base, key))

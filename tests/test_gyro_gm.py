@@ -46,6 +46,26 @@ def test_tuning_per_axis():
         tuning_from_toml('[states.gyro_gm]\nmode = "C"\ncorrelation_time_s = [1, 0, 2]\n')
 
 
+def test_tuning_quantum():
+    """[states.gyro_gm] quantum_dps: the rate step, from which the sigma (q / sqrt(12) per axis, in
+    the layout's P0 too) and the correlation time follow; quantum_scale and quantum_window_s
+    override c and the slope window. Beside sigma_deg_h or correlation_time_s, without
+    quantum_dps, or zero: refused naming the key."""
+    t = tuning_from_toml('[states.gyro_gm]\nmode = "C"\nquantum_dps = 0.03\nquantum_scale = 20\n')
+    q = math.radians(0.03)
+    assert t.gyro_gm_quantum == pytest.approx(q, rel=1e-15) and t.gyro_gm_quantum_scale == 20.0
+    assert t.gyro_gm_quantum_window_s == Tuning().gyro_gm_quantum_window_s
+    np.testing.assert_allclose(t.gyro_gm_sigmas(), q / math.sqrt(12.0), rtol=1e-15)
+    lay = build_layout(t, 1)
+    np.testing.assert_allclose(np.diag(lay.initial_covariance())[lay["gyro_gm"]], q * q / 12.0, rtol=1e-15)
+    for text, key in (('quantum_dps = 0.03\nsigma_deg_h = 5', "sigma_deg_h"),
+                      ('quantum_dps = 0.03\ncorrelation_time_s = 5', "correlation_time_s"),
+                      ('quantum_scale = 20', "quantum_scale"), ('quantum_dps = 0', "quantum_dps"),
+                      ('quantum_dps = 0.03\nquantum_window_s = -1', "quantum_window_s")):
+        with pytest.raises(ValueError, match=rf"\[states.gyro_gm\] {key}"):
+            tuning_from_toml(f'[states.gyro_gm]\nmode = "C"\n{text}\n')
+
+
 def _gm_tuning(mode="E"):
     return Tuning().with_(gyro_gm=StateGroupTuning(mode, GM_SIGMA_DEG_H * DEG_H), gyro_gm_tau_s=GM_TAU_S)
 
@@ -86,22 +106,29 @@ def test_transition_per_axis():
     np.testing.assert_allclose(np.diag(Phi[ig, ig]), np.exp(-dt / np.array(taus)), rtol=1e-15)
 
 
-@pytest.mark.parametrize("per_axis", [False, True])
-def test_propagation_and_feedback(per_axis):
+@pytest.mark.parametrize("form", ["common", "per_axis", "quantum"])
+def test_propagation_and_feedback(form):
     """One 0.1 s block: P equals Phi P0 Phi^T + q dt + (1 - phi^2) sigma^2 on g_w with Phi from the
     block's recorded transition (closed form of the first-order Gauss-Markov process); the
-    estimate decays by phi and the INS subtracts b_w + g_w (its calibration row)."""
-    sig = np.array([1.0, 18.0, 20.0]) * DEG_H if per_axis else np.full(3, GM_SIGMA_DEG_H * DEG_H)
-    tau = np.array([0.3, 1.3, GM_TAU_S]) if per_axis else np.full(3, GM_TAU_S)
+    estimate decays by phi and the INS subtracts b_w + g_w (its calibration row). In the
+    rate-quantum form sigma is q / sqrt(12) and 1 / tau the block's per-sample rates."""
+    sig = np.array([1.0, 18.0, 20.0]) * DEG_H if form == "per_axis" else np.full(3, GM_SIGMA_DEG_H * DEG_H)
+    tau = np.array([0.3, 1.3, GM_TAU_S]) if form == "per_axis" else np.full(3, GM_TAU_S)
     tun = _gm_tuning().with_(vector_gm_mode="off")
-    if per_axis:
+    if form == "per_axis":
         tun = tun.with_(gyro_gm=StateGroupTuning("E", tuple(sig)), gyro_gm_tau_s=tuple(tau))
+    if form == "quantum":
+        q = math.radians(0.03)
+        tun = tun.with_(gyro_gm_quantum=q)
+        sig, tau = np.full(3, q / math.sqrt(12.0)), np.array([0.4, 2.5, 60.0])
     lay = build_layout(tun, 1)
     n = lay.n
     B = np.random.default_rng(1).normal(size=(n, n)) * 1e-3
     P0 = B @ B.T + lay.initial_covariance()
     st = FilterState(lay, tun, [6.6e6, 0, 0], [0.0, 7.5e3, 0.0], [0.0, 0.0, 0.0, 1.0], P0.copy(), np.eye(3)[None],
                      np.zeros(1))
+    if form == "quantum":
+        st.follow_rates(np.vstack([1.0 / tau, [9.0, 9.0, 9.0]]))   # the block reads sample 0's rates
     st.gw_hat[:] = [1e-5, -2e-5, 3e-5]
     st.cal_arr[1] = [4e-6, 0.0, -4e-6]
     fw = np.zeros((2, 2, 3))
@@ -111,6 +138,9 @@ def test_propagation_and_feedback(per_axis):
     ig = lay["gyro_gm"]
     phi = np.exp(-0.1 / tau)
     np.testing.assert_allclose(d[ig], phi, rtol=1e-15)
+    # the attitude's column of g_w: -R_eb dt (1 - dt / (2 tau)), the second-order term of its decay;
+    # R_eb turns by 1e-3 rad over the block (cos: 5e-7 on the diagonal), dt / (2 tau) >= 8e-4
+    np.testing.assert_allclose(np.diag(A[6:9, ig]), -0.1 + 0.1 ** 2 / (2 * tau), rtol=1e-6)
     Phi = np.diag(d)
     Phi[:9] = A
     P_exp = Phi @ P0 @ Phi.T + np.diag(st.model[3:] * 0.1)

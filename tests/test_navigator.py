@@ -359,25 +359,24 @@ def test_ins_through_spinning_ascent(atek_nav_grade_ideal):
 # ------------------------------------------------------------------------------------------------
 
 VEC_GM_DEG, VEC_WHITE_DEG = 0.05, 0.02   # stand-in vision error: GM (T_c = 20 s) + white, per vector
-GYRO_WHITE_MATCHED = math.hypot(0.05, 0.116)  # deg/sqrt(h), see matched_tuning
-GYRO_GM_MATCHED = (19.6, 0.93)  # deg/h, s: the quantisation's correlated part, see matched_tuning
+GYRO_WHITE_MATCHED = 0.05  # deg/sqrt(h), the angular random walk, see matched_tuning
+GYRO_QUANTUM_DPS = 0.03   # the atek gyro's rate step, see matched_tuning
 GYRO_MISALIGNMENT_SPLIT_MRAD = 1.4142  # 2 mrad / sqrt(2), see matched_tuning
 
 
 def matched_tuning(base: Tuning | None = None) -> Tuning:
     """Table 3 with the error models of the simulated sensors instead of 003's flight tuning:
-    accelerometer 0.05 mg/sqrt(Hz); gyro 0.05 deg/sqrt(h) plus the atek gyro's 0.03 deg/s
-    quantisation as white (0.116 deg/sqrt(h), one 20 Hz sample) and a considered Gauss-Markov rate
-    error of 19.6 deg/h and 0.93 s, which together match its white equivalent over 1-100 s
-    (scenarios/library/tuning/atek-sim.toml derives them); the simulator's six 2 mrad
-    axis-misalignment terms as their rotation and their non-orthogonality, 2 / sqrt(2) mrad each
-    (nav/imu_errors.py), both considered; vector white noise as simulated."""
+    accelerometer 0.05 mg/sqrt(Hz); gyro 0.05 deg/sqrt(h) and the atek gyro's 0.03 deg/s rate
+    quantisation as an estimated Gauss-Markov rate error whose correlation time follows the rates
+    (nav/quantisation.py; scenarios/library/tuning/atek-sim.toml derives them); the simulator's six
+    2 mrad axis-misalignment terms as their rotation and their non-orthogonality, 2 / sqrt(2) mrad
+    each (nav/imu_errors.py), both considered; vector white noise as simulated."""
     t = base or Tuning()
     mis = StateGroupTuning("C", GYRO_MISALIGNMENT_SPLIT_MRAD * 1e-3)
-    gm_sigma, gm_tau = GYRO_GM_MATCHED
+    q = math.radians(GYRO_QUANTUM_DPS)
     return t.with_(accel_white=0.05e-3 * 9.80665, gyro_white=math.radians(GYRO_WHITE_MATCHED) / 60.0,
                    vector_white=math.radians(VEC_WHITE_DEG), gyro_misalignment=mis, gyro_nonorthogonality=mis,
-                   gyro_gm=StateGroupTuning("C", math.radians(gm_sigma) / 3600.0), gyro_gm_tau_s=gm_tau)
+                   gyro_gm=StateGroupTuning("E", q / math.sqrt(12.0)), gyro_gm_quantum=q)
 
 
 @dataclass

@@ -136,8 +136,8 @@ def test_misalignment_reset_composes_the_misalignment_correction():
 def test_second_order_key_and_the_simulated_sensors_tuning_file():
     """``[filter] misalignment_reset`` and ``second_order_noise`` take booleans (anything else
     names the key); the shipped tuning of the simulated ATEK sensors is table 3 with the
-    simulator's white noises, the gyro quantisation's correlated part as a considered Gauss-Markov
-    rate error, its gyro misalignment split into rotation and non-orthogonality, the gyro bias estimated and the misalignment reset on (tests/test_navigator.py matched_tuning
+    simulator's white noises, the gyro's rate quantisation as an estimated Gauss-Markov rate error
+    that follows the rates, its gyro misalignment split into rotation and non-orthogonality, the gyro bias estimated and the misalignment reset on (tests/test_navigator.py matched_tuning
     holds the same values; atek-sim.toml derives them)."""
     import pytest
     from nav.tuning import tuning_from_toml
@@ -150,8 +150,8 @@ def test_second_order_key_and_the_simulated_sensors_tuning_file():
             tuning_from_toml(f"[filter]\n{key} = 1\n")
     t = load_tuning(DEFAULT_TUNING_FILE.parent / "atek-sim.toml")
     m = matched_tuning()
-    assert t.gyro_gm.mode == m.gyro_gm.mode == "C" and t.gyro_gm.sigma == pytest.approx(m.gyro_gm.sigma, rel=1e-12)
-    assert t.gyro_gm_tau_s == m.gyro_gm_tau_s
+    assert t.gyro_gm.mode == m.gyro_gm.mode == "E" and t.gyro_gm_quantum == pytest.approx(m.gyro_gm_quantum, rel=1e-12)
+    np.testing.assert_allclose(t.gyro_gm_sigmas(), m.gyro_gm_sigmas(), rtol=1e-12)
     assert t.misalignment_reset and not t.second_order_noise and t.gyro_bias.mode == "E" and t.gyro_bias.sigma == m.gyro_bias.sigma
     assert t.accel_white == pytest.approx(m.accel_white, rel=1e-12)
     assert t.gyro_white == pytest.approx(m.gyro_white, rel=1e-4)
@@ -159,7 +159,7 @@ def test_second_order_key_and_the_simulated_sensors_tuning_file():
     assert t.gyro_misalignment == m.gyro_misalignment == t.gyro_nonorthogonality == m.gyro_nonorthogonality
     assert t.gyro_misalignment.mode == "C" and t.gyro_misalignment.sigma == pytest.approx(2e-3 / 2 ** 0.5, rel=1e-4)
     assert t.with_(misalignment_reset=False, gyro_bias=m.gyro_bias, accel_white=m.accel_white, gyro_white=m.gyro_white,
-                   vector_white=m.vector_white, gyro_gm=m.gyro_gm) == m
+                   vector_white=m.vector_white, gyro_gm=m.gyro_gm, gyro_gm_quantum=m.gyro_gm_quantum) == m
 
 
 def test_misalignment_reset_start_is_consistent_over_the_first_40_s():

@@ -4,6 +4,7 @@ noise parameters set away from the prior on simulated atek coasts whose true noi
 from __future__ import annotations
 
 import math
+import tomllib
 
 import numpy as np
 import pytest
@@ -94,7 +95,8 @@ def test_tuning_toml_keys_round_trip():
                 "[filter]\nfirst_update_iterations = -1\n"):
         with pytest.raises(ValueError):
             tuning_from_toml(bad)
-    scalar = {n: p for n, p in PARAMS.items() if p.axes is None}   # the per-axis ones: test_per_axis_gyro_gm_keys
+    # the per-axis ones: test_per_axis_gyro_gm_keys; the rate-quantum scale: test_quantum_gyro_gm_keys
+    scalar = {n: p for n, p in PARAMS.items() if p.axes is None and n != "gyro_quantum_scale"}
     ests = [Estimate(n, p.get(Tuning()), 1.7 * p.get(Tuning()), 0.1, True) for n, p in scalar.items()]
     res = TuneResult(ests, Tuning(), 0.0, 0.0, 1, 1.0, True, 1, 1)
     t = tuning_from_toml(tuning_toml(res, {"filter": {"gate_probability": 0.999}}))
@@ -123,6 +125,28 @@ def test_per_axis_gyro_gm_keys():
     np.testing.assert_allclose(t.gyro_gm_tau_s, [0.6, 1.3, 1.7], rtol=1e-5)
     line = next(ln for ln in text.splitlines() if ln.startswith("sigma_deg_h"))
     assert "x: ML estimate" in line and "z: ML estimate" in line and "y:" not in line
+
+
+def test_quantum_gyro_gm_keys():
+    """A tuning whose Gauss-Markov gyro error is the rate quantum's rounding is tuned in its scale
+    c: ``available`` offers gyro_quantum_scale and refuses gyro_gm_sigma / gyro_gm_tau with the
+    reason (a sigma / tau tuning the other way round); the TOML written from the base file's
+    overrides keeps quantum_dps, holds the estimate and reads back."""
+    toml = '[states.gyro_gm]\nmode = "E"\nquantum_dps = 0.03\n'
+    base = tuning_from_toml(toml)
+    ok, why = available(["gyro_gm_sigma", "gyro_gm_tau", "gyro_quantum_scale"], base, {"hor"})
+    assert [p.name for p in ok] == ["gyro_quantum_scale"]
+    assert set(why) == {"gyro_gm_sigma", "gyro_gm_tau"} and "quantum_dps" in why["gyro_gm_sigma"]
+    drift = tuning_from_toml('[states.gyro_gm]\nmode = "C"\nsigma_deg_h = 5\ncorrelation_time_s = 100\n')
+    ok, why = available(["gyro_gm_sigma", "gyro_quantum_scale"], drift, {"hor"})
+    assert [p.name for p in ok] == ["gyro_gm_sigma"] and "no rate quantum" in why["gyro_quantum_scale"]
+    p = PARAMS["gyro_quantum_scale"]
+    tuned = p.set(base, 30.0)
+    text = tuning_toml(TuneResult([Estimate(p.name, p.get(base), 30.0, 0.1, True)], tuned, 0.0, 0.0, 1, 1.0, True, 1, 1),
+                       tomllib.loads(toml))
+    t = tuning_from_toml(text)
+    assert t.gyro_gm_quantum_scale == pytest.approx(30.0) and t.gyro_gm_quantum == base.gyro_gm_quantum
+    assert t.gyro_gm.mode == "E"
 
 
 def test_per_camera_cov_scale_keys():
@@ -244,10 +268,11 @@ def draw(fl, seed: int, white: float, pc_scale: float, gps_scale: float, *, gm_d
 def base_tuning(white: float = PRIOR_WHITE) -> Tuning:
     """The simulated IMU's matched tuning with the prior vector white noise, its gyro as one white
     noise at the quantisation's 5-100 s level of body y and z (0.5 deg/sqrt(h)) instead of
-    matched_tuning's white and Gauss-Markov split: the draws that redraw the IMU have no
+    matched_tuning's rate-quantisation state: the draws that redraw the IMU have no
     quantisation and a white gyro noise drawn around this prior, and the tuned parameters are
     ones of that white-noise model."""
-    return matched_tuning().with_(vector_white=white, gyro_white=0.5 * DEG_RTH, gyro_gm=StateGroupTuning("off", 0.0))
+    return matched_tuning().with_(vector_white=white, gyro_white=0.5 * DEG_RTH, gyro_gm=StateGroupTuning("off", 0.0),
+                                  gyro_gm_quantum=0.0)
 
 
 def check_recovery(res, truth: dict):
@@ -451,7 +476,7 @@ def test_tuned_filter_nis_means_inside_their_bands():
     fi.vectors.P_c *= (0.12 / 0.03) ** 2
     inp = TuneInputs(fi.imu, truth_init(fi), fi.gps, fi.vectors, fi.R_bc_nominal)
     base = matched_tuning().with_(vector_white=math.radians(0.02), gyro_white=0.05 * DEG_RTH,
-                                  gyro_gm=StateGroupTuning("off", 0.0))   # no quantisation in this IMU
+                                  gyro_gm=StateGroupTuning("off", 0.0), gyro_gm_quantum=0.0)   # no quantisation in this IMU
     # one P_c scale per target (the truth's): split per camera, each camera's near-constant bias is
     # one draw and camera 1's scale is flat (standard error 0.84), kept at its 4x prior
     res = tune(inp, base, ["vector_white_hor", "vector_white_sun", "vector_cov_scale_hor", "vector_cov_scale_sun",

@@ -155,6 +155,19 @@ def _group_used(name: str):
     return lambda t: f"the {name} state is off" if not getattr(t, name).on else None
 
 
+def _gyro_gm_form(quantum: bool):
+    """``applies`` of a Gauss-Markov gyro parameter: the state is on, in its sigma / tau form
+    (``quantum`` False) or its rate-quantum form (True, ``[states.gyro_gm] quantum_dps``)."""
+    def reason(t: Tuning):
+        if not t.gyro_gm.on:
+            return "the gyro_gm state is off"
+        if (t.gyro_gm_quantum > 0) != quantum:
+            return ("the gyro_gm state has no rate quantum ([states.gyro_gm] quantum_dps)" if quantum else
+                    "the gyro_gm state is the rate quantum's rounding (its sigma and tau follow quantum_dps)")
+        return None
+    return reason
+
+
 def _group_param(name: str, unit: str, key: str, factor: float, group: str | None = None) -> Param:
     """The 1-sigma of state group ``group`` (default ``name``) as parameter ``name``."""
     g = group or name
@@ -185,21 +198,25 @@ def _params() -> dict:
                               ("imu", "accel_white_noise_extra_mg_rthz", None)), to_unit=1.0 / (1e-3 * G0))
     p["gyro_bias"] = _group_param("gyro_bias", "deg/h", "sigma_deg_h", DEG_H)
     p["accel_bias"] = _group_param("accel_bias", "mg", "sigma_mg", 1e-3 * G0)
-    p["gyro_gm_sigma"] = _group_param("gyro_gm_sigma", "deg/h", "sigma_deg_h", DEG_H, "gyro_gm")
+    p["gyro_gm_sigma"] = replace(_group_param("gyro_gm_sigma", "deg/h", "sigma_deg_h", DEG_H, "gyro_gm"),
+                                 applies=_gyro_gm_form(False))
     p["gyro_gm_tau"] = Param("gyro_gm_tau", "s", lambda t: t.gyro_gm_tau_s, lambda t, v: replace(t, gyro_gm_tau_s=v),
                              frozenset(AIDING), (("states.gyro_gm", "correlation_time_s", 1.0),),
-                             _group_used("gyro_gm"))
+                             _gyro_gm_form(False))
+    p["gyro_quantum_scale"] = Param("gyro_quantum_scale", "", lambda t: t.gyro_gm_quantum_scale,
+                                    lambda t, v: replace(t, gyro_gm_quantum_scale=v), frozenset(AIDING),
+                                    (("states.gyro_gm", "quantum_scale", 1.0),), _gyro_gm_form(True))
     for i, ax in enumerate(AXES):
         p[f"gyro_gm_sigma_{ax}"] = Param(f"gyro_gm_sigma_{ax}", "deg/h", lambda t, i=i: float(t.gyro_gm_sigmas()[i]),
                                          lambda t, v, i=i: replace(t, gyro_gm=replace(
                                              t.gyro_gm, sigma=_axis_set(t.gyro_gm_sigmas(), i, v))),
                                          frozenset(AIDING), (("states.gyro_gm", "sigma_deg_h", 1.0 / DEG_H),),
-                                         _group_used("gyro_gm"), 1.0 / DEG_H, lambda t: t.gyro_gm_sigmas())
+                                         _gyro_gm_form(False), 1.0 / DEG_H, lambda t: t.gyro_gm_sigmas())
         p[f"gyro_gm_tau_{ax}"] = Param(f"gyro_gm_tau_{ax}", "s", lambda t, i=i: float(gyro_gm_taus(t.gyro_gm_tau_s)[i]),
                                        lambda t, v, i=i: replace(t, gyro_gm_tau_s=_axis_set(
                                            gyro_gm_taus(t.gyro_gm_tau_s), i, v)),
                                        frozenset(AIDING), (("states.gyro_gm", "correlation_time_s", 1.0),),
-                                       _group_used("gyro_gm"), axes=lambda t: gyro_gm_taus(t.gyro_gm_tau_s))
+                                       _gyro_gm_form(False), axes=lambda t: gyro_gm_taus(t.gyro_gm_tau_s))
     p["gps_noise_scale"] = Param("gps_noise_scale", "x", lambda t: t.gps_noise_scale,
                                  lambda t, v: replace(t, gps_noise_scale=v), frozenset({"gps_pos", "gps_vel"}),
                                  (("gps", "noise_scale", 1.0),))
@@ -260,10 +277,14 @@ def is_gm_param(name: str) -> bool:
 
 
 #: the parameters ``tune`` estimates unless told otherwise (those the flight can carry; the ones
-#: without measurements are dropped with the reason)
+#: without measurements are dropped with the reason). Not the turn-on bias sigmas ``gyro_bias`` and
+#: ``accel_bias``: each is the spread of a constant over units, of which a flight holds one draw
+#: per axis, so even a perfectly observed bias leaves the standard error of log sigma at
+#: 1 / sqrt(2 * 3) = 0.41 (three samples), far from identified (0.087); an estimate from one
+#: flight is that draw's noise. They are estimated when named in ``--params``.
 DEFAULT_PARAMS = ("vector_white_hor", "vector_white_sun", "vector_white_moon", "vector_cov_scale_hor",
                   "vector_cov_scale_sun", "vector_cov_scale_moon", "correlation_time", "gyro_white", "accel_white",
-                  "gyro_bias", "accel_bias", "gyro_gm_sigma", "gyro_gm_tau", "gps_noise_scale")
+                  "gyro_gm_sigma", "gyro_gm_tau", "gyro_quantum_scale", "gps_noise_scale")
 
 
 @dataclass

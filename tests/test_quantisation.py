@@ -1,0 +1,77 @@
+"""The rate-following model of a rate gyro's rounding (nav/quantisation.py): the slope window, the
+correlation time, and the sawtooth figures its docstring rests on, against independent forms."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from nav.quantisation import TAU_MAX_S, block_rates, quantisation_rates, rate_slopes
+from scenarios.sim.imu import _quantise_rate
+
+DT = 0.05   #: 20 Hz, the simulated atek gyro
+
+
+def test_rate_slopes_match_polyfit():
+    """Inside the record each slope is the straight-line least-squares fit over the window
+    (numpy.polyfit on the same samples) to rounding (1e-12 of the signal's scale)."""
+    rng = np.random.default_rng(3)
+    ts = np.arange(400) * DT
+    w = np.cumsum(rng.normal(size=(400, 3)), axis=0) * 1e-3
+    got = rate_slopes(ts, w, 1.0)
+    m = 20
+    for i in (m, 137, 250, 400 - m - 1):
+        for c in range(3):
+            ref = np.polyfit(ts[i - m:i + m + 1], w[i - m:i + m + 1, c], 1)[0]
+            assert got[i, c] == pytest.approx(ref, rel=1e-9, abs=1e-12)
+
+
+def test_quantisation_rates_closed_form():
+    """Ramps of q/2, q/10 and 0 per second: 1 / tau = c |alpha| / q = 12, 2.4 and the floor
+    1 / TAU_MAX_S (c = 24); a ramp of 100 q per second is capped at 1 / dt."""
+    q, c = math.radians(0.03), 24.0
+    ts = np.arange(0.0, 30.0, DT)
+    w = np.outer(ts, [q / 2, q / 10, 0.0])
+    r = quantisation_rates(ts, w, q, c, 5.0)
+    np.testing.assert_allclose(r[300], [12.0, 2.4, 1.0 / TAU_MAX_S], rtol=1e-9)
+    assert quantisation_rates(ts, 100 * q * ts[:, None], q, c, 5.0)[300, 0] == pytest.approx(1.0 / DT)
+    np.testing.assert_allclose(block_rates(r, 300, 304), r[300:304].mean(axis=0), rtol=1e-15)
+
+
+def _integrated_variance_saw(T_q: float, lag: float, q: float) -> float:
+    """E[(int_t^(t+lag) e)^2] of the rounding error e of a ramp crossing one quantum per T_q,
+    over the grid's phase: the simulator's rounding (scenarios.sim.imu) of a fine-sampled ramp."""
+    dt = T_q / 2000.0
+    t = np.arange(0.0, 4 * T_q, dt)
+    phases = np.linspace(0.0, q, 64, endpoint=False)
+    alpha = q / T_q
+    e = np.stack([_quantise_rate(alpha * t, q, u) - alpha * t for u in phases])   # (phase, time)
+    theta = np.cumsum(e, axis=1) * dt
+    k = int(round(lag / dt))
+    return float(np.mean((theta[:, k:] - theta[:, :-k]) ** 2))
+
+
+@pytest.mark.parametrize("u, c_doc", [(0.1, 6.7), (0.25, 8.2), (0.5, 13.7)])
+def test_sawtooth_matching_scale(u, c_doc):
+    """The scale c of tau = T_q / c that gives a Gauss-Markov rate error of sigma q / sqrt(12) the
+    sawtooth's integrated-error variance at a lag of u T_q (the figures of nav/quantisation.py):
+    the Gauss-Markov form 2 sigma^2 tau (L - tau (1 - exp(-L / tau))) solved against the
+    simulator's rounding of a ramp, within 2 % (the phase grid and the sampling of the ramp)."""
+    q, T_q = 1.0, 1.0
+    D = _integrated_variance_saw(T_q, u * T_q, q)
+    s2 = q * q / 12.0
+
+    def gm(tau):
+        return 2 * s2 * tau * (u * T_q - tau * (1 - math.exp(-u * T_q / tau))) - D
+    tau = brentq(gm, 1e-4, 10.0)
+    assert T_q / tau == pytest.approx(c_doc, rel=0.02)
+
+
+def test_docstring_examples():
+    """The module's examples run as written."""
+    import doctest
+    import nav.quantisation
+    res = doctest.testmod(nav.quantisation)
+    assert res.attempted >= 2 and res.failed == 0
