@@ -35,7 +35,7 @@ from nav.earth import GM, OMEGA_E
 from nav.error_state import (N_TRANSITION, StateLayout, edge_gm_indices, gyro_gm_indices, gyro_gm_taus, nav_transition, propagate_covariance,
                              transition_columns)
 from nav.imu_errors import GROUP_TO_FIELD, ImuCalibration, affine_into
-from nav.quantisation import block_rates
+from nav.quantisation import block_rates, cumulative_rates
 from nav.rotation import matrix_to_quat, quat_to_matrix
 from nav.tuning import Tuning
 
@@ -109,7 +109,8 @@ class FilterState:
         self.gyro_tau = gyro_gm_taus(tuning.gyro_gm_tau_s)
         #: (1 / tau, sigma^2) per Gauss-Markov gyro state (:meth:`_gyro_decay`)
         self.gyro_decay = (1.0 / self.gyro_tau, tuning.gyro_gm_sigmas() ** 2)
-        #: (N, 3) 1 / tau per IMU sample of a rate-following gyro error (:meth:`follow_rates`)
+        #: (N + 1, 3) running sums of 1 / tau per IMU sample of a rate-following gyro error
+        #: (:meth:`follow_rates`)
         self.gyro_rates = None
         self.fed = np.zeros(N_CAL + 9 * n_cam + 3 * nz + 2 * n_cam + self.gyro_gm.size)
         self.cal_arr = self.fed[:N_CAL].reshape(len(CAL_FIELDS), 3)
@@ -155,7 +156,7 @@ class FilterState:
         """Give the Gauss-Markov gyro error a correlation time per IMU sample: ``rates`` (N, 3)
         ``1 / tau`` [1/s] on the samples :meth:`propagate` indexes (the rounding of a rate
         output, :func:`nav.quantisation.quantisation_rates`)."""
-        self.gyro_rates = np.asarray(rates, float)
+        self.gyro_rates = cumulative_rates(rates)
 
     def propagate(self, ts, fw, traj, k: int, k_end: int, avg: bool, A_out, d_out) -> None:
         """The INS and the covariance from IMU sample k to k_end (:func:`propagate_block`)."""

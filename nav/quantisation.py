@@ -74,8 +74,15 @@ def quantisation_rates(ts: np.ndarray, w: np.ndarray, quantum: float, scale: flo
     return np.clip(rate, 1.0 / TAU_MAX_S, 1.0 / dt)
 
 
-def block_rates(rates: np.ndarray, k: int, k_end: int) -> np.ndarray:
+def cumulative_rates(rates: np.ndarray) -> np.ndarray:
+    """(N + 1, 3) running sums of ``rates`` (N, 3) from zero, for :func:`block_rates`."""
+    rates = np.asarray(rates, float)
+    return np.concatenate([np.zeros((1, rates.shape[1])), np.cumsum(rates, axis=0)])
+
+
+def block_rates(cumulative: np.ndarray, k: int, k_end: int) -> np.ndarray:
     """The mean ``1 / tau`` (3,) over the sample intervals from k to k_end (each interval at its
-    first sample's value): ``exp(-dt mean)`` is the exact decay over the block of a process whose
-    rate is constant within each interval."""
-    return rates[k:max(k_end, k + 1)].mean(axis=0)
+    first sample's value), from the running sums of :func:`cumulative_rates`: ``exp(-dt mean)``
+    is the exact decay over the block of a process whose rate is constant within each interval."""
+    n = max(k_end - k, 1)
+    return (cumulative[k + n] - cumulative[k]) / n

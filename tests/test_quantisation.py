@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from nav.quantisation import TAU_MAX_S, block_rates, quantisation_rates, rate_slopes
+from nav.quantisation import TAU_MAX_S, block_rates, cumulative_rates, quantisation_rates, rate_slopes
 from scenarios.sim.imu import _quantise_rate
 
 DT = 0.05   #: 20 Hz, the simulated atek gyro
@@ -37,7 +37,9 @@ def test_quantisation_rates_closed_form():
     r = quantisation_rates(ts, w, q, c, 5.0)
     np.testing.assert_allclose(r[300], [12.0, 2.4, 1.0 / TAU_MAX_S], rtol=1e-9)
     assert quantisation_rates(ts, 100 * q * ts[:, None], q, c, 5.0)[300, 0] == pytest.approx(1.0 / DT)
-    np.testing.assert_allclose(block_rates(r, 300, 304), r[300:304].mean(axis=0), rtol=1e-15)
+    c = cumulative_rates(r)
+    np.testing.assert_allclose(block_rates(c, 300, 304), r[300:304].mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(block_rates(c, 300, 300), r[300], rtol=1e-12)   # an empty block: its sample
 
 
 def _integrated_variance_saw(T_q: float, lag: float, q: float) -> float:
