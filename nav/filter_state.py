@@ -211,8 +211,22 @@ class FilterState:
         The misalignment's own correction ``d_c`` (``R_bc <- exp([d_c x]) R_bc``, 003 eq. (50))
         adds the second-order ``I + 1/2 [d_c x]`` of composing rotations. ``P <- G P G^T`` with
         ``G = exp(-[b x]) (I + 1/2 [d_c x])`` on each estimated ``psi_c``, I elsewhere."""
+        reset_rotations_kernel(self.P, np.asarray(dx, float), self.rot_starts, self.reset_rotation(dx))
+
+    def reset_rotation(self, dx) -> np.ndarray:
+        """``exp(-[b x])`` of :meth:`reset_rotations` for the correction ``dx`` (``nav`` holding
+        the corrected attitude): ``b = R_eb^T d``."""
         b = quat_to_R(self.nav[6:10]).T @ np.asarray(dx[self.layout["psi"]], float)
-        reset_rotations_kernel(self.P, np.asarray(dx, float), self.rot_starts, rotvec_to_R(-b))
+        return rotvec_to_R(-b)
+
+    def reset_columns(self, H: np.ndarray, dx, Rb: np.ndarray) -> None:
+        """Rows ``H`` linearised about the state corrected by ``dx`` re-expressed in the error
+        coordinates before it, in place: each estimated ``psi_c``'s columns times
+        ``G = Rb (I + 1/2 [d_c x])``, the map of :meth:`reset_rotations` (``psi_c`` after = G
+        ``psi_c`` before)."""
+        for s in self.rot_starts:
+            G = Rb @ (np.eye(3) + skew(0.5 * np.asarray(dx[s:s + 3], float)))
+            H[:, s:s + 3] = H[:, s:s + 3] @ G
 
     def attitude_sigma(self) -> float:
         """Largest per-axis 1-sigma of the attitude error psi [rad]."""

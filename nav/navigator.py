@@ -565,8 +565,9 @@ class _Loop:
             for t_m, si, j in self.events[e0:e1]:
                 src = self.sources[si]
                 src.fill(j, t_m, (f, w, (t_m - t_k) / NS - src.clock_shift(j, st)), st, stack)
+            Rb = st.reset_rotation(delta) if st.tuning.misalignment_reset else None
             st.restore(prior)
-            new = stack.relinearised(st, delta)
+            new = stack.relinearised(st, delta, Rb)
             if new is None:
                 st.restore(post)
                 return delta

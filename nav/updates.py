@@ -164,18 +164,24 @@ class EpochStack:
             log.warning("update at %d ns rejected: %s", t_k, REASONS[int(status)])
         return None
 
-    def relinearised(self, st, delta) -> np.ndarray | None:
+    def relinearised(self, st, delta, Rb=None) -> np.ndarray | None:
         """One Gauss-Newton step of the iterated update (Bell & Cathey 1993): the blocks accepted
         by the latest :meth:`apply`, filled again about the current estimate ``x_i`` (rows ``H_i``,
         innovations ``s_i``), applied to the prior that ``st`` holds again with the innovation
         ``s_i + H_i delta``, ``delta`` the correction from the prior to ``x_i`` (error-state
-        coordinates), without gating. Returns the new correction from the prior, or None when
-        the update fails (non-finite or S not positive definite)."""
+        coordinates), without gating. With the misalignment reset (``Rb``, from
+        :meth:`nav.filter_state.FilterState.reset_rotation` at ``x_i``) the rows are first taken
+        back to the prior's coordinates of the camera misalignments
+        (:meth:`~nav.filter_state.FilterState.reset_columns`), where the prior's covariance holds
+        them. Returns the new correction from the prior, or None when the update fails
+        (non-finite or S not positive definite)."""
         blocks = [self.blocks[i] for i in self.accepted]
         if not blocks:
             return None
         rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in blocks])
         H, R = self.H[rows], self.R[np.ix_(rows, rows)]
+        if Rb is not None:
+            st.reset_columns(H, delta, Rb)
         s = self.s[rows] + H @ delta
         offs = np.zeros(len(blocks) + 1, dtype=np.int64)
         np.cumsum([b[4] for b in blocks], out=offs[1:])
