@@ -224,9 +224,9 @@ class FilterState:
         coordinates before it, in place: each estimated ``psi_c``'s columns times
         ``G = Rb (I + 1/2 [d_c x])``, the map of :meth:`reset_rotations` (``psi_c`` after = G
         ``psi_c`` before)."""
+        dx = np.asarray(dx, float)
         for s in self.rot_starts:
-            G = Rb @ (np.eye(3) + skew(0.5 * np.asarray(dx[s:s + 3], float)))
-            H[:, s:s + 3] = H[:, s:s + 3] @ G
+            H[:, s:s + 3] = H[:, s:s + 3] @ reset_map(Rb, dx[s:s + 3])
 
     def attitude_sigma(self) -> float:
         """Largest per-axis 1-sigma of the attitude error psi [rad]."""
@@ -372,6 +372,16 @@ def extrapolate(nav, f, w, dt_m, W):
 
 
 @nb.njit(cache=True)
+def reset_map(Rb, d):
+    """``G = Rb (I + 1/2 [d x])``: a camera misalignment's coordinates after the feedback of its
+    correction ``d`` (3,) from those before it (:meth:`FilterState.reset_rotations`)."""
+    D = skew(0.5 * d)
+    for i in range(3):
+        D[i, i] += 1.0
+    return Rb @ D
+
+
+@nb.njit(cache=True)
 def reset_rotations_kernel(P, dx, starts, Rb):
     """``P <- G P G^T`` in place for ``G = Rb (I + 1/2 [d x])`` on the 3-blocks at ``starts``
     (``d`` the block of ``dx``) and I elsewhere (:meth:`FilterState.reset_rotations`): the
@@ -381,10 +391,7 @@ def reset_rotations_kernel(P, dx, starts, Rb):
     tmp = np.empty((n, 3))
     for b in range(starts.size):
         s = starts[b]
-        D = skew(0.5 * dx[s:s + 3])
-        for i in range(3):
-            D[i, i] += 1.0
-        G = Rb @ D
+        G = reset_map(Rb, dx[s:s + 3])
         for i in range(n):
             for j in range(3):
                 tmp[i, j] = P[i, s] * G[j, 0] + P[i, s + 1] * G[j, 1] + P[i, s + 2] * G[j, 2]

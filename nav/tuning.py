@@ -346,7 +346,7 @@ _SCALARS = {
                  "attitude_sigma_gap_deg": ("recovery_att_sigma_gap", math.radians(1.0)),
                  "attitude_sigma_divergence_deg": ("recovery_att_sigma_divergence", math.radians(1.0))},
 }
-_NONZERO = {"correlation_time_s", "max_cov_interval_s", "noise_scale"}
+_NONZERO = {"correlation_time_s", "max_cov_interval_s", "noise_scale", "quantum_dps", "quantum_scale", "quantum_window_s"}
 VECTOR_TARGETS = ("hor", "sun", "moon")
 #: per-target keys of [vectors]: key prefix -> Tuning field of (target, value) pairs
 _PER_TARGET = {"white_noise_": "vector_white_by_target", "cov_scale_": "vector_cov_scale_by_target"}
@@ -498,10 +498,7 @@ def _gyro_quantum(states: dict, kw: dict) -> dict:
                          "(q / sqrt(12)) and the correlation time (from the rates)")
     for key, (field_, factor) in _QUANTUM_KEYS.items():
         if key in g:
-            x = _positive(g[key], f"[states.gyro_gm] {key}")
-            if x == 0:
-                raise ValueError(f"tuning [states.gyro_gm] {key}: must be > 0")
-            kw[field_] = x * factor
+            kw[field_] = _scalar("states.gyro_gm", key, g[key], factor)
     sigma_deg_h = math.degrees(kw["gyro_gm_quantum"]) * 3600.0 / math.sqrt(12.0)
     return {**states, "gyro_gm": {**{k: v for k, v in g.items() if k not in _QUANTUM_KEYS}, "sigma_deg_h": sigma_deg_h}}
 

@@ -79,11 +79,9 @@ def _imu_config(cfg, tun):
     """The scenario's IMU with the tuning's white noises, bias and drift sigmas, or its rate
     quantum where the tuning's Gauss-Markov gyro error is that rounding; no other quantisation,
     no axis misalignment."""
-    s = tun.gyro_gm.sigma    # one value, or three (body x, y, z)
-    gm = (tuple(x / DEG_H for x in s) if isinstance(s, tuple) else s / DEG_H) if tun.gyro_gm.on else 0.0
     quantum = math.degrees(tun.gyro_gm_quantum) if tun.gyro_gm.on else 0.0
-    if quantum > 0:     # the Gauss-Markov state is the rate output's rounding: simulate that instead
-        gm = 0.0
+    # a drift per body axis, unless the Gauss-Markov state is the rate output's rounding (simulated as such)
+    gm = tuple(tun.gyro_gm_sigmas() / DEG_H) if tun.gyro_gm.on and quantum == 0 else 0.0
     return dataclasses.replace(cfg, gyro_noise_deg_rt_h=tun.gyro_white / DEG_RTH, accel_noise_mg_rt_hz=tun.accel_white / MG,
                                gyro_bias_deg_h=tun.gyro_bias.sigma / DEG_H if tun.gyro_bias.on else 0.0,
                                accel_bias_mg=tun.accel_bias.sigma / MG if tun.accel_bias.on else 0.0,
