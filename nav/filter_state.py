@@ -30,7 +30,7 @@ import numba as nb
 import numpy as np
 
 from nav import ins
-from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R, skew
+from nav._kernels import R_to_quat, gravity, quat_to_R, rotvec_to_R
 from nav.earth import GM, OMEGA_E
 from nav.error_state import (N_TRANSITION, StateLayout, edge_gm_indices, gyro_gm_indices, gyro_gm_taus, nav_transition, propagate_covariance,
                              transition_columns)
@@ -199,34 +199,36 @@ class FilterState:
         after :func:`feedback_kernel`, ``nav`` holding the corrected attitude).
 
         The vectors measure the camera's attitude error, in b ``phi = R_eb^T psi + psi_c``
-        (:func:`nav.measurements.second_order_noise`). The attitude error ``psi`` is in e, where a
-        vector's unobserved rotation (about the target's direction) does not depend on the
-        estimate; it is left as it is (the feedback only subtracts the correction). ``psi_c`` is in
-        b, and the feedback ``R_eb <- exp([d x]) R_eb`` turns b's view of e:
-        ``R_eb_new^T = exp(-[b x]) R_eb^T`` with ``b = R_eb^T d``. Transforming ``psi_c`` by
-        ``G = exp(-[b x])`` carries what the vectors told about ``phi`` over to the new estimate
-        exactly, ``R_eb_new^T psi + G psi_c = exp(-[b x]) (R_eb^T psi + psi_c)``; without it a
-        correction of degrees rotates a well-known ``phi`` into a poorly known direction and the
-        filter reads information about the attitude / misalignment split into the difference.
-        The misalignment's own correction ``d_c`` (``R_bc <- exp([d_c x]) R_bc``, 003 eq. (50))
-        adds the second-order ``I + 1/2 [d_c x]`` of composing rotations. ``P <- G P G^T`` with
-        ``G = exp(-[b x]) (I + 1/2 [d_c x])`` on each estimated ``psi_c``, I elsewhere."""
-        reset_rotations_kernel(self.P, np.asarray(dx, float), self.rot_starts, self.reset_rotation(dx))
+        (:func:`nav.measurements.vector_jacobians`), and leave its complement, the attitude /
+        misalignment split, to the vehicle's turning. The feedback ``R_eb <- exp([d x]) R_eb``
+        turns b's view of e: ``R_eb_new^T = exp(-[b x]) R_eb^T`` with ``b = R_eb^T d``.
+        Transforming each estimated ``psi_c`` by ``G = exp(-[b x])`` carries what the vectors told
+        about ``phi`` over to the new estimate exactly, ``R_eb_new^T psi + G psi_c = exp(-[b x])
+        (R_eb^T psi + psi_c)``, and keeps the directions the vectors leave unobserved where they
+        were. Without it a correction of degrees turns a well-known ``phi`` into a poorly known
+        direction, and the filter reads the change as information about the split.
+
+        ``psi`` is left as it is, and so is ``psi_c`` under its own correction ``d_c``. Composing
+        the rotations exactly would map them by ``I + 1/2 [d x]`` and ``I + 1/2 [d_c x]``, which
+        turn those unobserved directions by half of each correction; a first-order filter then
+        gains the same spurious information about the split (the observability-constrained EKF's
+        argument: Huang, Mourikis and Roumeliotis 2010, IEEE T-RO 26(5)). docs/tuning.md "A
+        consistent start" gives the measured comparison. ``P <- G P G^T`` with ``G`` on each
+        estimated ``psi_c``, I elsewhere."""
+        reset_rotations_kernel(self.P, self.rot_starts, self.reset_rotation(dx))
 
     def reset_rotation(self, dx) -> np.ndarray:
-        """``exp(-[b x])`` of :meth:`reset_rotations` for the correction ``dx`` (``nav`` holding
-        the corrected attitude): ``b = R_eb^T d``."""
+        """``G = exp(-[b x])`` of :meth:`reset_rotations` for the correction ``dx`` (``nav``
+        holding the corrected attitude): ``b = R_eb^T d``."""
         b = quat_to_R(self.nav[6:10]).T @ np.asarray(dx[self.layout["psi"]], float)
         return rotvec_to_R(-b)
 
-    def reset_columns(self, H: np.ndarray, dx, Rb: np.ndarray) -> None:
-        """Rows ``H`` linearised about the state corrected by ``dx`` re-expressed in the error
-        coordinates before it, in place: each estimated ``psi_c``'s columns times
-        ``G = Rb (I + 1/2 [d_c x])``, the map of :meth:`reset_rotations` (``psi_c`` after = G
-        ``psi_c`` before)."""
-        dx = np.asarray(dx, float)
+    def reset_columns(self, H: np.ndarray, Rb: np.ndarray) -> None:
+        """Rows ``H`` linearised about a state corrected by some ``dx`` re-expressed in the error
+        coordinates before it, in place: each estimated ``psi_c``'s columns times ``Rb``, the map
+        ``G`` of :meth:`reset_rotations` for that ``dx`` (``psi_c`` after = G ``psi_c`` before)."""
         for s in self.rot_starts:
-            H[:, s:s + 3] = H[:, s:s + 3] @ reset_map(Rb, dx[s:s + 3])
+            H[:, s:s + 3] = H[:, s:s + 3] @ Rb
 
     def attitude_sigma(self) -> float:
         """Largest per-axis 1-sigma of the attitude error psi [rad]."""
@@ -372,26 +374,14 @@ def extrapolate(nav, f, w, dt_m, W):
 
 
 @nb.njit(cache=True)
-def reset_map(Rb, d):
-    """``G = Rb (I + 1/2 [d x])``: a camera misalignment's coordinates after the feedback of its
-    correction ``d`` (3,) from those before it (:meth:`FilterState.reset_rotations`)."""
-    D = skew(0.5 * d)
-    for i in range(3):
-        D[i, i] += 1.0
-    return Rb @ D
-
-
-@nb.njit(cache=True)
-def reset_rotations_kernel(P, dx, starts, Rb):
-    """``P <- G P G^T`` in place for ``G = Rb (I + 1/2 [d x])`` on the 3-blocks at ``starts``
-    (``d`` the block of ``dx``) and I elsewhere (:meth:`FilterState.reset_rotations`): the
-    block's columns, then its rows, then the mirror of the block's rows into its columns
-    (symmetry kept exactly)."""
+def reset_rotations_kernel(P, starts, G):
+    """``P <- G P G^T`` in place for ``G`` (3, 3) on the 3-blocks at ``starts`` and I elsewhere
+    (:meth:`FilterState.reset_rotations`): the block's columns, then its rows, then the mirror of
+    the block's rows into its columns (symmetry kept exactly)."""
     n = P.shape[0]
     tmp = np.empty((n, 3))
     for b in range(starts.size):
         s = starts[b]
-        G = reset_map(Rb, dx[s:s + 3])
         for i in range(n):
             for j in range(3):
                 tmp[i, j] = P[i, s] * G[j, 0] + P[i, s + 1] * G[j, 1] + P[i, s + 2] * G[j, 2]

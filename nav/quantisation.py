@@ -11,11 +11,13 @@ error ``g_w`` (:mod:`nav.error_state`) then takes, per body axis, the stationary
 
     tau(t) = q / (c |alpha(t)|),  bounded to [dt, TAU_MAX_S],
 
-with ``alpha`` the least-squares slope of the measured rate over a window centred on each sample
-(:func:`rate_slopes`). The scale ``c`` follows from matching a Gauss-Markov process to the
-sawtooth: the sawtooth's autocorrelation ``1 - 6u + 6u^2`` (``u`` the lag over ``T_q``) starts
-like ``exp(-6u)`` (c = 6), but its integral is periodic, where a Gauss-Markov process's random
-walks; matching the variance of the integrated error (the attitude error it drives) at lags of
+with ``alpha`` the least-squares slope of the measured rate over the window before each sample or
+the window after it, whichever is the flatter (:func:`rate_slopes`): a window centred on a sample
+just after a sharp manoeuvre (a tip-off, a thruster pulse) carries the manoeuvre's slope into
+seconds where the rate holds still and the rounding is a bias. The scale ``c`` follows from
+matching a Gauss-Markov process to the sawtooth: the sawtooth's autocorrelation ``1 - 6u + 6u^2``
+(``u`` the lag over ``T_q``) starts like ``exp(-6u)`` (c = 6), but its integral is periodic, where
+a Gauss-Markov process's random walks; matching the variance of the integrated error (the attitude error it drives) at lags of
 0.1 / 0.25 / 0.5 ``T_q`` gives c = 6.7 / 8.2 / 13.7, and c grows without bound towards a whole
 period. The default (:attr:`nav.tuning.Tuning.gyro_gm_quantum_scale`) is set from Monte Carlo
 flights (docs/tuning.md "Rate quantisation") and ``horizon-nav tune`` estimates it from a flight.
@@ -28,33 +30,46 @@ import numpy as np
 TAU_MAX_S = 60.0
 
 
-def rate_slopes(ts: np.ndarray, w: np.ndarray, half_window_s: float) -> np.ndarray:
-    """Least-squares slope of each column of ``w`` (N, k) over the samples within
-    ``half_window_s`` of each sample [unit of w per s].
+def rate_slopes(ts: np.ndarray, w: np.ndarray, window_s: float) -> np.ndarray:
+    """Per sample, the flatter of the least-squares slopes of each column of ``w`` (N, k) over
+    the samples within ``window_s`` before it and within ``window_s`` after it [unit of w
+    per s].
 
-    The slope of a straight-line fit to the ``2 m + 1`` samples centred on sample ``i`` is
-    ``sum_j j w_(i+j) / (dt sum_j j^2)`` (``j = -m..m``, a uniform interval ``dt``): a
-    convolution. Near the ends the window is filled with the end samples (the slope falls towards
-    zero there, which makes the correlation time longer, the conservative side).
+    The slope of a straight-line fit to the ``m + 1`` samples ``i - m .. i`` is ``sum_j (j - m/2)
+    w_(i-m+j) / (dt sum_j (j - m/2)^2)`` (``j = 0..m``, a uniform interval ``dt``): one
+    convolution gives both sides, the window after sample i being the one before sample i + m.
+    Taking the one of smaller magnitude keeps a kink in the rate (a manoeuvre that starts or
+    stops) from spreading into the steady side; on a straight line both sides agree. Near the
+    ends the window is filled with the end samples (the slope falls towards zero there, which
+    makes the correlation time longer, the conservative side).
 
     Examples
     --------
+    A rate that ramps at 0.3 per second and then holds still from t = 5 s:
+
     >>> ts = np.arange(0.0, 10.0, 0.05)
-    >>> round(float(rate_slopes(ts, 0.3 * ts[:, None], 1.0)[100, 0]), 12)
-    0.3
+    >>> w = 0.3 * np.minimum(ts, 5.0)[:, None]
+    >>> [round(float(rate_slopes(ts, w, 1.0)[i, 0]), 12) + 0.0 for i in (60, 110)]
+    [0.3, 0.0]
     """
     ts = np.asarray(ts, float)
     w = np.asarray(w, float).reshape(len(ts), -1)
+    n = len(ts)
     dt = float(np.median(np.diff(ts)))
-    m = max(1, int(round(half_window_s / dt)))
-    j = np.arange(-m, m + 1, dtype=float)
+    m = max(1, int(round(window_s / dt)))
+    j = np.arange(m + 1, dtype=float) - 0.5 * m
     kernel = j[::-1] / (dt * np.sum(j * j))
     pad = np.pad(w, ((m, m), (0, 0)), mode="edge")
-    return np.stack([np.convolve(pad[:, c], kernel, mode="valid") for c in range(w.shape[1])], axis=1)
+    out = np.empty_like(w)
+    for c in range(w.shape[1]):
+        trailing = np.convolve(pad[:, c], kernel, mode="valid")   # [i]: the window ending at sample i
+        before, after = trailing[:n], trailing[m:m + n]
+        out[:, c] = np.where(np.abs(before) <= np.abs(after), before, after)
+    return out
 
 
 def quantisation_rates(ts: np.ndarray, w: np.ndarray, quantum: float, scale: float,
-                       half_window_s: float) -> np.ndarray:
+                       window_s: float) -> np.ndarray:
     """Per sample and body axis, ``1 / tau`` [1/s] of the rounding error of a rate output of step
     ``quantum`` [rad/s] (module docstring): ``c |alpha| / q``, bounded to ``[1 / TAU_MAX_S,
     1 / dt]``. ``ts`` (N,) [s], ``w`` (N, 3) the measured rates [rad/s].
@@ -70,7 +85,7 @@ def quantisation_rates(ts: np.ndarray, w: np.ndarray, quantum: float, scale: flo
     12.0
     """
     dt = float(np.median(np.diff(ts)))
-    rate = scale * np.abs(rate_slopes(ts, w, half_window_s)) / quantum
+    rate = scale * np.abs(rate_slopes(ts, w, window_s)) / quantum
     return np.clip(rate, 1.0 / TAU_MAX_S, 1.0 / dt)
 
 

@@ -117,7 +117,8 @@ class Tuning:
     gyro_gm_quantum_scale : float
         ``c`` of that correlation time; TOML ``[states.gyro_gm] quantum_scale``.
     gyro_gm_quantum_window_s : float
-        Half width of the window of the rate's slope [s]; TOML ``[states.gyro_gm] quantum_window_s``.
+        Width of the one-sided windows of the rate's slope [s] (:func:`nav.quantisation.rate_slopes`);
+        TOML ``[states.gyro_gm] quantum_window_s``.
     vector_white : float
         White noise (1 sigma, per axis, unit-vector units) added to eq. (49) as Q_tuning.
     vector_gm_mode : str
@@ -204,7 +205,7 @@ class Tuning:
     gyro_gm: StateGroupTuning = StateGroupTuning("off", math.radians(5.0) / 3600.0)
     gyro_gm_tau_s: float = 100.0
     gyro_gm_quantum: float = 0.0
-    gyro_gm_quantum_scale: float = 24.0
+    gyro_gm_quantum_scale: float = 80.0
     gyro_gm_quantum_window_s: float = 5.0
     vector_white: float = 0.005
     vector_gm_mode: str = "C"

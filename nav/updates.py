@@ -181,7 +181,7 @@ class EpochStack:
         rows = np.concatenate([np.arange(b[3], b[3] + b[4]) for b in blocks])
         H, R = self.H[rows], self.R[np.ix_(rows, rows)]
         if Rb is not None:
-            st.reset_columns(H, delta, Rb)
+            st.reset_columns(H, Rb)
         s = self.s[rows] + H @ delta
         offs = np.zeros(len(blocks) + 1, dtype=np.int64)
         np.cumsum([b[4] for b in blocks], out=offs[1:])

@@ -15,8 +15,9 @@ DT = 0.05   #: 20 Hz, the simulated atek gyro
 
 
 def test_rate_slopes_match_polyfit():
-    """Inside the record each slope is the straight-line least-squares fit over the window
-    (numpy.polyfit on the same samples) to rounding (1e-12 of the signal's scale)."""
+    """Inside the record each slope is the straight-line least-squares fit (numpy.polyfit on the
+    same samples) over the window before the sample or the one after it, whichever has the
+    smaller magnitude, to rounding (1e-12 of the signal's scale)."""
     rng = np.random.default_rng(3)
     ts = np.arange(400) * DT
     w = np.cumsum(rng.normal(size=(400, 3)), axis=0) * 1e-3
@@ -24,9 +25,30 @@ def test_rate_slopes_match_polyfit():
     m = 20
     for i in (m, 137, 250, 400 - m - 1):
         for c in range(3):
-            ref = np.polyfit(ts[i - m:i + m + 1], w[i - m:i + m + 1, c], 1)[0]
+            before = np.polyfit(ts[i - m:i + 1], w[i - m:i + 1, c], 1)[0]
+            after = np.polyfit(ts[i:i + m + 1], w[i:i + m + 1, c], 1)[0]
+            ref = before if abs(before) <= abs(after) else after
             assert got[i, c] == pytest.approx(ref, rel=1e-9, abs=1e-12)
 
+
+def test_rate_slopes_keep_a_manoeuvre_out_of_the_steady_side():
+    """A tip-off: the rate falls by 4 deg/s over 2.6 s, then drifts at 0.003 deg/s^2 (atek
+    T+61..T+68). Over the 5 s after the tip-off ends no slope exceeds the drift (a window that
+    straddles the kink, where the two slopes have opposite signs, may fit a flatter line: the
+    longer correlation time, the conservative side), and over the first 3 s it is the drift's (to
+    1e-9 of the tip-off's slope); a window centred on each sample, the previous form, returns up
+    to a third of the tip-off's slope there (asserted > 0.1 of it, 30 times the drift)."""
+    ts = np.arange(0.0, 30.0, DT)
+    tip, drift = math.radians(-1.53), math.radians(0.003)
+    w = np.where(ts < 10.0, 0.0, np.where(ts < 12.6, tip * (ts - 10.0), tip * 2.6 + drift * (ts - 12.6)))
+    after = (ts > 12.6) & (ts < 17.6)
+    got = rate_slopes(ts, w[:, None], 5.0)[after, 0]
+    assert np.all(np.abs(got) <= drift + 1e-9 * abs(tip))
+    assert np.allclose(got[ts[after] < 15.6], drift, rtol=0, atol=1e-9 * abs(tip))
+    m = 100
+    j = np.arange(-m, m + 1) * DT
+    centred = np.convolve(np.pad(w, m, mode="edge"), j[::-1] / np.sum(j * j), mode="valid")[after]
+    assert np.max(np.abs(centred)) > 0.1 * abs(tip)
 
 def test_quantisation_rates_closed_form():
     """Ramps of q/2, q/10 and 0 per second: 1 / tau = c |alpha| / q = 12, 2.4 and the floor
@@ -84,10 +106,12 @@ def test_atek_sim_study_is_consistent(tmp_path):
     """The shipped tuning of the simulated sensors (atek-sim.toml, the rate-quantisation state) on
     its 200-run study (scenarios/library/studies/atek-sim-mc.toml; about 90 s on 2 processes): the
     200-run mean attitude NEES inside its 95 % band (chi2(600)/200 = 2.67..3.35) on >= 95 % of the
-    coast's 1-s epochs and on every epoch after T+160 (the issue's bound; measured 0.965 and 1.0),
-    the horizon and Sun NIS means over the runs inside the 95 % band of one run's time average
-    (1.86..2.15 and 1.69..2.33 for the runs' 742 and 149 vectors; measured 2.016, 2.009),
-    and the final 3-sigma attitude bound <= 1.8 deg and within 4x the RMS error (1.110 / 0.433)."""
+    coast's 1-s epochs (the issue's bound; measured 0.984), on >= 90 % of T+60..T+160 (measured
+    0.94: T+68..T+72 above the band; 0.87 with a centred slope window, 0.53 at c = 40) and on every
+    epoch after T+160, the horizon and Sun NIS means over the runs inside the 95 % band of one
+    run's time average (1.86..2.15 and 1.69..2.33 for the runs' 742 and 149 vectors; measured
+    2.016, 2.011), and the final 3-sigma attitude bound <= 1.8 deg and within 4x the RMS error
+    (1.115 / 0.428)."""
     import pandas as pd
     from scipy.stats import chi2
     from scenarios.study.execute import run_study
@@ -96,7 +120,7 @@ def test_atek_sim_study_is_consistent(tmp_path):
     run_study(load_study("atek-sim-mc"), tmp_path / "mc", workers=2, progress=False, report=False)
     met, ser = pd.read_parquet(tmp_path / "mc" / "metrics.parquet"), pd.read_parquet(tmp_path / "mc" / "series.parquet")
     bf = band_fraction(ser, 0, "nees_att", ((60.0, 160.0), (160.0, 431.0)))
-    assert bf["all"]["inside"] >= 0.95 and bf[(160.0, 431.0)]["inside"] == 1.0, bf
+    assert bf["all"]["inside"] >= 0.95 and bf[(60.0, 160.0)]["inside"] >= 0.9 and bf[(160.0, 431.0)]["inside"] == 1.0, bf
     mean = met.groupby("metric").value.mean()
     for kind in ("hor", "sun"):   # a run's time-averaged 2-dof NIS has the band chi2(2 n) / n, n its count
         n = mean[f"nis_count_{kind}"]
