@@ -17,9 +17,9 @@ just after a sharp manoeuvre (a tip-off, a thruster pulse) carries the manoeuvre
 seconds where the rate holds still and the rounding is a bias. The scale ``c`` follows from
 matching a Gauss-Markov process to the sawtooth: the sawtooth's autocorrelation ``1 - 6u + 6u^2``
 (``u`` the lag over ``T_q``) starts like ``exp(-6u)`` (c = 6), but its integral is periodic, where
-a Gauss-Markov process's random walks; matching the variance of the integrated error (the attitude error it drives) at lags of
-0.1 / 0.25 / 0.5 ``T_q`` gives c = 6.7 / 8.2 / 13.7, and c grows without bound towards a whole
-period. The default (:attr:`nav.tuning.Tuning.gyro_gm_quantum_scale`) is set from Monte Carlo
+a Gauss-Markov process's random walks; matching the variance of the integrated error (the
+attitude error it drives) at lags of 0.1 / 0.25 / 0.5 ``T_q`` gives c = 6.7 / 8.2 / 13.7, and c
+grows without bound towards a whole period. The default (:attr:`nav.tuning.Tuning.gyro_gm_quantum_scale`) is set from Monte Carlo
 flights (docs/tuning.md "Rate quantisation") and ``horizon-nav tune`` estimates it from a flight.
 """
 from __future__ import annotations

@@ -50,6 +50,7 @@ def test_rate_slopes_keep_a_manoeuvre_out_of_the_steady_side():
     centred = np.convolve(np.pad(w, m, mode="edge"), j[::-1] / np.sum(j * j), mode="valid")[after]
     assert np.max(np.abs(centred)) > 0.1 * abs(tip)
 
+
 def test_quantisation_rates_closed_form():
     """Ramps of q/2, q/10 and 0 per second: 1 / tau = c |alpha| / q = 12, 2.4 and the floor
     1 / TAU_MAX_S (c = 24); a ramp of 100 q per second is capped at 1 / dt."""

@@ -158,9 +158,11 @@ def _group_used(name: str):
 def _gyro_gm_form(quantum: bool):
     """``applies`` of a Gauss-Markov gyro parameter: the state is on, in its sigma / tau form
     (``quantum`` False) or its rate-quantum form (True, ``[states.gyro_gm] quantum_dps``)."""
+    off = _group_used("gyro_gm")
+
     def reason(t: Tuning):
-        if not t.gyro_gm.on:
-            return "the gyro_gm state is off"
+        if off(t):
+            return off(t)
         if (t.gyro_gm_quantum > 0) != quantum:
             return ("the gyro_gm state has no rate quantum ([states.gyro_gm] quantum_dps)" if quantum else
                     "the gyro_gm state is the rate quantum's rounding (its sigma and tau follow quantum_dps)")
