@@ -93,6 +93,18 @@ def write_log(flight: sim.FlightData, path: Path, truth_rate_hz: float | None = 
     return Path(path)
 
 
+def rendered_images(flight: sim.FlightData, opts, progress: bool = True):
+    """``(images, masks)`` for :func:`write_log`: the flight's frames rendered with ``opts``
+    (a stream) and, when the renderer draws the payload, each camera's payload mask."""
+    from scenarios.sim.render import payload_mask, render_flight_images
+
+    images = render_flight_images(flight, options=opts, progress=progress)
+    masks = None
+    if opts.payload_mask is not None:   # what the renderer draws the payload into
+        masks = {c.k: payload_mask(c.camera, opts.payload_mask) for c in flight.cameras}
+    return images, masks
+
+
 def run(args) -> int:
     sc = load_scenario(args.scenario)
     out = Path(args.output)
@@ -115,11 +127,8 @@ def run(args) -> int:
                                      progress=lambda f, label: progress(0.85 * f, label))
         images = masks = None
         if args.images:
-            from scenarios.sim.render import payload_mask, render_flight_images, scenario_render_options
-            opts = scenario_render_options(sc, args.jpeg_quality)
-            images = render_flight_images(flight, options=opts, progress=not args.quiet)
-            if opts.payload_mask is not None:   # what the renderer draws the payload into
-                masks = {c.k: payload_mask(c.camera, opts.payload_mask) for c in flight.cameras}
+            from scenarios.sim.render import scenario_render_options
+            images, masks = rendered_images(flight, scenario_render_options(sc, args.jpeg_quality), not args.quiet)
         vectors = None
         if args.vectors:
             from scenarios.sim.truth_vectors import flight_truth_vectors

@@ -77,16 +77,16 @@ def orbit_scenario(duration_s: float | None = None, rate_hz: float | None = None
 
 def simulate_log(path: Path, case: Case = Case(45e3), *, sc=None, flight=None, seed: int = 0) -> Path:
     """Simulate (or reuse ``flight``) and render the scenario ``sc`` with the limb edge of ``case``
-    into the log ``path`` (what ``horizon-nav simulate`` writes)."""
-    from scenarios.cli.simulate import write_log
-    from scenarios.sim.render import render_flight_images, scenario_render_options
+    into the log ``path`` (what ``horizon-nav simulate --images`` writes, payload masks included)."""
+    from scenarios.cli.simulate import rendered_images, write_log
+    from scenarios.sim.render import scenario_render_options
     from scenarios.sim.simulate import simulate_flight
 
     sc = orbit_scenario() if sc is None else sc
     flight = simulate_flight(sc, seed) if flight is None else flight
     opts = dataclasses.replace(scenario_render_options(sc), limb_shift_m=case.shift_m, **PROFILES[case.profile])
-    images = render_flight_images(flight, options=opts, progress=False)
-    return write_log(flight, Path(path), None, None, images=images)
+    images, masks = rendered_images(flight, opts, progress=False)
+    return write_log(flight, Path(path), None, None, images=images, masks=masks)
 
 
 def replay_log(path: Path, out: Path, workers: int = 1):
@@ -98,11 +98,12 @@ def replay_log(path: Path, out: Path, workers: int = 1):
     return replay(path, opt)
 
 
-def _truth_rows(rr, target: str):
-    """(mask into rr.vectors, truth unit vectors) of camera 1's vectors of ``target``."""
+def _truth_rows(rr, target: str, camera: int = 0):
+    """(mask into rr.vectors, truth unit vectors) of the vectors of ``target`` of the replay's
+    camera index ``camera``."""
     v = rr.vectors
-    ct = rr.inputs.cameras[rr.cam_numbers[0]].truth
-    m = np.flatnonzero((v.camera == 0) & (v.target == target))
+    ct = rr.inputs.cameras[rr.cam_numbers[camera]].truth
+    m = np.flatnonzero((v.camera == camera) & (v.target == target))
     j = np.searchsorted(ct["t_ns"], v.t_ns[m])
     ok = (j < ct["t_ns"].size)
     ok[ok] = ct["t_ns"][j[ok]] == v.t_ns[m][ok]
@@ -149,12 +150,13 @@ def _smoothed_inside_3sigma(rr) -> float:
     return float(np.mean(np.all(np.abs(psi) <= s3, axis=1)))
 
 
-def flight_figures(rr, case: Case | None = None) -> dict:
-    """The figures of one replayed orbit (see the module docstring)."""
+def flight_figures(rr, case: Case | None = None, camera: int = 0) -> dict:
+    """The figures of one replayed flight (see the module docstring) for the replay's camera
+    index ``camera``; the attitude figures are the filter's, the same for every camera."""
     from scenarios.replay.summary import summarize
 
     v, s = rr.vectors, summarize(rr)
-    m, e_true = _truth_rows(rr, "hor")
+    m, e_true = _truth_rows(rr, "hor", camera)
     has = np.all(np.isfinite(v.dedge_c[m]), axis=1)
     g = np.where(has[:, None], v.dedge_c[m], 0.0)
     ref = np.where(has, v.edge_ref_m[m], 0.0)
@@ -162,12 +164,12 @@ def flight_figures(rr, case: Case | None = None) -> dict:
     e = v.e_c[m]
     r = e_true - e
     h_truth = float(np.mean(ref[has]) - np.sum(g * r) / np.sum(g * g))
-    edge = s["edge_height"]["camera_1"]
+    edge = s["edge_height"][f"camera_{rr.cam_numbers[camera]}"]
     h_s, sig_s = edge["smoothed_km"] * 1e3, edge["smoothed_sigma_km"] * 1e3
     moved = e - g * (h_s - ref)[:, None]
     err_raw, err = _angle_deg(e, e_true), _angle_deg(moved, e_true)
     sigma_prior = _prior_sigma() if sigma_ref is None else sigma_ref
-    mm, m_true = _truth_rows(rr, "moon")
+    mm, m_true = _truth_rows(rr, "moon", camera)
     t_nees, nees = _nees(rr)
     inside = (nees >= NEES_BAND[0]) & (nees <= NEES_BAND[1])
     after = t_nees >= v.t_ns[mm].min() if len(mm) else np.zeros(len(nees), bool)
@@ -182,18 +184,18 @@ def flight_figures(rr, case: Case | None = None) -> dict:
                att_rms_forward_deg=s["truth"]["forward"]["att_rms_deg"],
                att_rms_smoothed_deg=s["truth"]["smoothed"]["att_rms_deg"],
                att_inside_3sigma_smoothed=_smoothed_inside_3sigma(rr),
-               moon_found=int(len(mm)), moon_frames=_moon_frames(rr),
+               moon_found=int(len(mm)), moon_frames=_moon_frames(rr, camera),
                moon_rms_deg=float(np.sqrt(np.mean(_angle_deg(v.e_c[mm], m_true) ** 2))) if len(mm) else math.nan)
     if case is not None:
         out = dict(case=case.name, profile=case.profile, edge_render_km=case.height_m / 1e3, **out)
     return out
 
 
-def _moon_frames(rr) -> int:
-    """Frames whose true Moon centre projects into the image."""
+def _moon_frames(rr, camera: int = 0) -> int:
+    """Frames of the replay's camera index ``camera`` whose true Moon centre projects into the image."""
     from vision.camera import project
 
-    cs = rr.inputs.cameras[rr.cam_numbers[0]]
+    cs = rr.inputs.cameras[rr.cam_numbers[camera]]
     m = cs.truth["moon_c"]
     with np.errstate(invalid="ignore"):
         uv = project(cs.camera, m)
