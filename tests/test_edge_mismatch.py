@@ -260,3 +260,18 @@ def test_ground_edge_under_a_shadowed_limb_gives_way_to_the_limb():
         else:
             assert tr.inner_candidate is None and hit.mean() > 0.99
             assert err > 3.0 * rec.sigma_deg, (err, rec.sigma_deg)
+
+
+def test_short_arc_mirrored_by_the_edge_height_fit_is_refused(setup):
+    """Camera 0 at T+430 (76 km, descending; the Earth fills the image, the limb a short arc in a
+    corner), standard profile with the edge at 60 km: the scored cone passes the side test and
+    the gate, but the joint direction and edge-height fit on the threshold edge lands on the cone
+    that curves the other way, 165 deg from the renderer's nadir with a 3-sigma of 3.6 deg (a
+    wrong answer with a success code until the final direction was checked against the scored
+    one). Now the frame either gives no vector, with the reason, or one inside its 3 sigma."""
+    _, cam, mask, cfg, cache = setup
+    fl, recs = em._flight()
+    lo = fl.truth.liftoff_ns
+    r = next(q for q in recs if q.camera_index == 0 and abs((q.t_ns - lo) * 1e-9 - 430.0) < 1e-6)
+    (o,) = em.run_case(em.Case(60e3), [(430.0, 0, r)], cam, mask, cfg, cache)
+    assert (not o.found and "moved the nadir" in o.reason) or o.err_deg <= o.sigma3_deg, o

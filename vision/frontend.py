@@ -395,6 +395,9 @@ def _winner_record(out: TargetResult, win, image, camera, tc: TargetConfig, mode
     edge = (math.nan, math.nan)
     if model is not None:
         e_c, P, alpha, edge, uv, inl, fit = _earth_final(out, image, camera, tc, model, limb, w, L_eff, timings)
+        out.reason = _moved_reason(e_c, model.to_camera(win.fit.e_c), tc)
+        if out.reason:
+            return out
         conic = conic_type(e_c, out.cone_alpha)[1]
         t3 += timings.get("earth.limb", 0.0)
     else:
@@ -414,6 +417,19 @@ def _winner_record(out: TargetResult, win, image, camera, tc: TargetConfig, mode
     if baseline:
         _baseline_fit(out, camera, cand, timings, name)
     return out
+
+
+def _moved_reason(e_c, e_scored, tc: TargetConfig) -> str:
+    """"" when the final Earth direction ``e_c`` (edge height fitted, limb edge) lies within
+    ``gate_deg`` of the direction ``e_scored`` whose side and gate the scoring checked, else the
+    reason. On a short arc the cone that curves the other way fits nearly as well (the mirrored
+    nadir, ~2 alpha away: 162 deg at 76 km); the refits start from the scored cone but their
+    edge height is free, and one that lands on the mirror has passed no side test."""
+    off = math.degrees(math.acos(max(-1.0, min(1.0, float(e_c @ e_scored)))))
+    if off > tc.gate_deg:
+        return (f"the edge-height fit moved the nadir {off:.1f} deg from the scored cone > gate_deg "
+                f"{tc.gate_deg:g} (a mirrored cone on a short arc?)")
+    return ""
 
 
 def _outer_candidate(res: TargetResult, good: list, win, camera, tc: TargetConfig):
