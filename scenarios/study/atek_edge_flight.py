@@ -15,7 +15,9 @@ the smoother's height and its sigma, the nadir RMS as fitted and moved to the le
 RMS.
 
 Run: ``python -m scenarios.study.atek_edge_flight [--heights KM ...] [--profiles NAME ...]
-[--out FILE.json]`` (about 3 minutes per case on 2 cores: the render and the vision dominate).
+[--edge limb|threshold] [--out FILE.json]``: one line per camera and case as it finishes (about
+1.4 minutes per case on 2 cores, the render and the vision dominating; the JSON is rewritten after
+each). The slow tests of tests/test_atek_edge_flight.py run it.
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from pathlib import Path
 from scenarios.atomic import atomic_write_text
 from scenarios.study.edge_mismatch import HEIGHTS_M, PROFILES, Case
 
-__all__ = ["TUNING", "EDGE_STATE", "replay_log", "run_study", "main"]
+__all__ = ["TUNING", "EDGE_STATE", "tuning_file", "replay_log", "run_study", "main"]
 
 _LIB = Path(__file__).resolve().parent.parent / "library"
 #: the tuning matched to the simulated sensors (the edge Monte Carlo's), to which :data:`EDGE_STATE`
