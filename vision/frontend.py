@@ -76,7 +76,7 @@ from vision.mask import PayloadMask
 from vision.nadir import angle_residuals, conic_type, direction_and_radius, within_cone
 from vision.oblate import ellipsoid_model, sphere_model
 from vision.results import CandidateResult, FrameResult, TargetResult, VectorRecord
-from vision.scoring import score_candidate
+from vision.scoring import gate_reason, score_candidate
 
 __all__ = ["TargetConfig", "VisionConfig", "FramePrior", "VectorRecord", "CandidateResult",
            "TargetResult", "FrameResult", "process_frame", "conic_polyline", "default_config",
@@ -425,11 +425,8 @@ def _moved_reason(e_c, e_scored, tc: TargetConfig) -> str:
     reason. On a short arc the cone that curves the other way fits nearly as well (the mirrored
     nadir, ~2 alpha away: 162 deg at 76 km); the refits start from the scored cone but their
     edge height is free, and one that lands on the mirror has passed no side test."""
-    off = math.degrees(math.acos(max(-1.0, min(1.0, float(e_c @ e_scored)))))
-    if off > tc.gate_deg:
-        return (f"the edge-height fit moved the nadir {off:.1f} deg from the scored cone > gate_deg "
-                f"{tc.gate_deg:g} (a mirrored cone on a short arc?)")
-    return ""
+    gate = gate_reason(e_c, e_scored, tc.gate_deg, "the scored cone")
+    return f"the edge-height fit moved the nadir {gate} (a mirrored cone on a short arc?)" if gate else ""
 
 
 def _outer_candidate(res: TargetResult, good: list, win, camera, tc: TargetConfig):

@@ -133,13 +133,13 @@ def _consensus(H, alpha, thr, tc: TargetConfig, frame_seed: int, cand: Candidate
     return rr
 
 
-def gate_reason(e_c, predicted, gate_deg: float) -> str:
+def gate_reason(e_c, predicted, gate_deg: float, what: str = "the predicted direction") -> str:
     """"" when ``predicted`` is None or the unit vector ``e_c`` lies within ``gate_deg`` of it,
-    else the reason."""
+    else the reason, naming ``predicted`` as ``what``."""
     if predicted is None:
         return ""
     off = math.degrees(math.acos(max(-1.0, min(1.0, float(e_c @ predicted)))))
-    return f"{off:.1f} deg from the predicted direction > gate_deg {gate_deg:g}" if off > gate_deg else ""
+    return f"{off:.1f} deg from {what} > gate_deg {gate_deg:g}" if off > gate_deg else ""
 
 
 def _disc_reason(fit: ConeFit, image, camera, mask, det, tc: TargetConfig, predicted) -> str:
@@ -221,10 +221,9 @@ def score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targe
     if model is not None and predicted is not None:
         # Earth gate: the geocentric nadir predicted by the prior (x_e, R_ec); a glare or cloud
         # edge that happens to fit a cone of the right radius points elsewhere
-        off = math.degrees(math.acos(max(-1.0, min(1.0, float(model.to_camera(fit.e_c) @ predicted)))))
-        if off > tc.gate_deg:
-            res.reason = (f"{off:.1f} deg from the predicted nadir > gate_deg {tc.gate_deg:g} "
-                          f"(glare or cloud edge?)")
+        gate = gate_reason(model.to_camera(fit.e_c), predicted, tc.gate_deg, "the predicted nadir")
+        if gate:
+            res.reason = f"{gate} (glare or cloud edge?)"
             return res
     if res.residual > tc.max_residual:
         res.reason = f"residual {res.residual:.3g} rad^2 > max_residual {tc.max_residual:.3g}"

@@ -161,8 +161,9 @@ def _gyro_gm_form(quantum: bool):
     off = _group_used("gyro_gm")
 
     def reason(t: Tuning):
-        if off(t):
-            return off(t)
+        why = off(t)
+        if why:
+            return why
         if (t.gyro_gm_quantum > 0) != quantum:
             return ("the gyro_gm state has no rate quantum ([states.gyro_gm] quantum_dps)" if quantum else
                     "the gyro_gm state is the rate quantum's rounding (its sigma and tau follow quantum_dps)")
