@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from scenarios.study import orbit_mismatch as om
@@ -54,12 +55,36 @@ def test_orbit_simulate_and_replay(orbit_log, tmp_path):
     dh = abs(f["edge_smoothed_km"] - f["edge_truth_km"])
     assert dh <= 3.0 and dh <= 3 * f["edge_smoothed_sigma_km"], f
     assert f["nadir_rms_deg"] <= 0.10 and f["containment"] == 1.0, f
+    n, ns = f["frames"], f["frames_with_sensitivity"]
+    other = f["nadir_rms_other_deg"] if ns < n else 0.0
+    assert f["nadir_rms_deg"] ** 2 * n == pytest.approx(f["nadir_rms_state_deg"] ** 2 * ns + other ** 2 * (n - ns), rel=1e-9)
+    # the fits' height minimises the squared error of the linear model; the angles are of the
+    # normalised vectors, which differ from it by the square of a 1e-3 rad error
+    assert f["nadir_rms_fits_height_deg"] <= f["nadir_rms_state_deg"] * (1 + 1e-6) + 1e-9, f
     assert f["att_inside_3sigma_smoothed"] == 1.0, f
     from scenarios.replay.summary import summarize
     s = summarize(rr)
     assert s["truth"]["forward"]["att_final_inside_3sigma"]
     assert f["nees_above_band"] <= 0.05, f
     assert s["truth"]["smoothed"]["pos_rms_m"] < 2.0
+
+
+def test_fits_height_is_the_least_squares_height():
+    """`orbit_mismatch._fits_height` against a closed form: frames whose vectors were fitted at
+    different heights ``ref_j`` with different sensitivities ``g_j``, the true nadir off by ``-g_j
+    (h - ref_j)`` plus an error perpendicular to ``g_j`` (which no height explains): the height is
+    ``h`` to rounding. The unweighted mean of ``ref_j`` (the formula before) is kilometres off."""
+    rng = np.random.default_rng(1)
+    g = rng.normal(size=(40, 3)) * rng.uniform(0.3, 1.5, size=(40, 1)) * 1e-5   # rad/m, 4x spread
+    ref = rng.uniform(0.0, 30e3, size=40)
+    perp = np.cross(g, rng.normal(size=(40, 3))) * 1e-1
+    r = -g * (12e3 - ref)[:, None] + perp
+    assert om._fits_height(g, r, ref) == pytest.approx(12e3, abs=1e-6)
+    gg = np.sum(g * g, axis=1)
+    assert abs(np.mean(ref) - np.sum(g * r) / np.sum(gg) - 12e3) > 1e3
+    g[::5] = 0.0   # frames without a sensitivity do not count
+    r[::5] = rng.normal(size=(8, 3))
+    assert om._fits_height(g, r, np.where(np.any(g, axis=1), ref, 0.0)) == pytest.approx(12e3, abs=1e-6)
 
 
 @pytest.fixture(scope="module")

@@ -82,13 +82,15 @@ def run_study(heights=HEIGHTS_M, profiles=tuple(PROFILES), workdir: Path | None 
     return rows
 
 
-_HEAD = (f"{'case':<18}{'cam':>4}{'h true':>8}{'h smooth':>10}{'1sig':>6}{'RMS raw':>9}{'RMS':>8}{'3s prior':>9}"
-         f"{'3s':>6}{'NEES in':>8}{'att sm':>8}")
+_HEAD = (f"{'case':<18}{'cam':>4}{'h true':>8}{'h smooth':>10}{'1sig':>6}{'RMS raw':>9}{'RMS':>8}{'state':>7}"
+         f"{'other':>7}{'n oth':>6}{'at fits':>8}{'3s prior':>9}{'3s':>6}{'NEES in':>8}{'att sm':>8}")
 
 
 def _line(r: dict) -> str:
     return (f"{r['case']:<18}{r['camera']:>4}{r['edge_truth_km']:>8.1f}{r['edge_smoothed_km']:>10.1f}"
             f"{r['edge_smoothed_sigma_km']:>6.1f}{r['nadir_rms_raw_deg']:>9.3f}{r['nadir_rms_deg']:>8.3f}"
+            f"{r['nadir_rms_state_deg']:>7.3f}{r['nadir_rms_other_deg']:>7.3f}{r['frames'] - r['frames_with_sensitivity']:>6d}"
+            f"{r['nadir_rms_fits_height_deg']:>8.3f}"
             f"{r['containment_prior']:>9.2f}{r['containment']:>6.2f}{r['nees_in_band']:>8.2f}"
             f"{r['att_rms_smoothed_deg']:>8.3f}")
 

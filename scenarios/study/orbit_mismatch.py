@@ -19,6 +19,11 @@ its shape. The figures of one case (`flight_figures`):
 * ``nadir_rms_raw_deg``: the Earth vectors (fitted at the vision's prior height) against the true
   nadir; ``nadir_rms_deg``: the same vectors moved to the smoothed height (``- g (h_s - h_ref)``;
   frames whose vector carries no sensitivity, ``frames - frames_with_sensitivity``, stay as they are);
+  split into ``nadir_rms_state_deg`` (the frames with the sensitivity, moved) and
+  ``nadir_rms_other_deg`` (those without: on the ATEK fisheye, frames whose limb edge is unusable,
+  twilight mostly, fall back to the threshold edge, which a state describing the limb edge does not
+  describe); ``nadir_rms_fits_height_deg``: the frames with the sensitivity moved to
+  ``edge_truth_km`` instead, what one height per camera can do at best;
 * ``containment_prior``: per-frame 3-sigma containment of the raw vectors with the height
   uncertainty the vision had (``P_c + sigma_ref^2 g g^T``, ``sigma_ref`` = ``edge_ref_sigma_m``:
   before anything is learned); ``containment``: of the
@@ -111,6 +116,20 @@ def _truth_rows(rr, target: str, camera: int = 0):
     return m[ok], ct[field][j[ok]]
 
 
+def _fits_height(g, r, ref) -> float:
+    """The edge height h [m] the frames' fits have: the least-squares solution of the measurement
+    model ``r_j = e_true_j - e_j = -g_j (h - ref_j)`` over the frames (rows of ``g`` zero where a
+    vector carries no sensitivity), ``h = sum_j g_j . (g_j ref_j - r_j) / sum_j |g_j|^2``: the
+    frames' own heights ``ref_j - g_j . r_j / |g_j|^2`` weighted by their sensitivity squared."""
+    gg = np.sum(g * g, axis=1)
+    return float(np.sum(gg * ref - np.sum(g * r, axis=1)) / np.sum(gg))
+
+
+def _rms(x) -> float:
+    """Root mean square of ``x``; NaN when empty."""
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
+
+
 def _angle_deg(a, b):
     a = a / np.linalg.norm(a, axis=1, keepdims=True)
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1.0, 1.0)))
@@ -163,11 +182,12 @@ def flight_figures(rr, case: Case | None = None, camera: int = 0) -> dict:
     sigma_ref = np.where(has, v.edge_ref_sigma_m[m], 0.0) if v.edge_ref_sigma_m is not None else None
     e = v.e_c[m]
     r = e_true - e
-    h_truth = float(np.mean(ref[has]) - np.sum(g * r) / np.sum(g * g))
+    h_truth = _fits_height(g, r, ref)
     edge = s["edge_height"][f"camera_{rr.cam_numbers[camera]}"]
     h_s, sig_s = edge["smoothed_km"] * 1e3, edge["smoothed_sigma_km"] * 1e3
     moved = e - g * (h_s - ref)[:, None]
     err_raw, err = _angle_deg(e, e_true), _angle_deg(moved, e_true)
+    err_fits = _angle_deg(e - g * (h_truth - ref)[:, None], e_true)[has]
     sigma_prior = _prior_sigma() if sigma_ref is None else sigma_ref
     mm, m_true = _truth_rows(rr, "moon", camera)
     t_nees, nees = _nees(rr)
@@ -175,7 +195,8 @@ def flight_figures(rr, case: Case | None = None, camera: int = 0) -> dict:
     after = t_nees >= v.t_ns[mm].min() if len(mm) else np.zeros(len(nees), bool)
     out = dict(frames=int(len(m)), frames_with_sensitivity=int(has.sum()), edge_truth_km=h_truth / 1e3, edge_smoothed_km=h_s / 1e3, edge_smoothed_sigma_km=sig_s / 1e3,
                nadir_rms_raw_deg=float(np.sqrt(np.mean(err_raw**2))), nadir_rms_deg=float(np.sqrt(np.mean(err**2))),
-               nadir_max_deg=float(err.max()),
+               nadir_max_deg=float(err.max()), nadir_rms_state_deg=_rms(err[has]), nadir_rms_other_deg=_rms(err[~has]),
+               nadir_rms_fits_height_deg=_rms(err_fits),
                containment_prior=_containment(err_raw, v.P_c[m], g, sigma_prior),
                containment=_containment(err, v.P_c[m], g, sig_s),
                nees_in_band=float(np.mean(inside)), nees_above_band=float(np.mean(nees > NEES_BAND[1])),
