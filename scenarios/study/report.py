@@ -82,6 +82,30 @@ def band_fraction(ser: pd.DataFrame, variant: int, quantity: str = "nees_att", w
     return out
 
 
+def run_band_fraction(ser: pd.DataFrame, variant: int, quantity: str = "nees_att", windows=()) -> dict:
+    """Where each run's ``quantity`` lies against the 95 % band of one chi2(dof) value
+    (``mean_band(dof, 1)``: [0.216, 9.35] for 3 dof), over all its run-epochs and per window: the
+    single-run reading of the band, beside :func:`band_fraction`'s N-run mean.
+
+    A consistent filter puts 95 % of its run-epochs inside and 2.5 % on either side, whatever N;
+    the N-run mean's band narrows as 1/sqrt(N), so there a filter a few per cent cautious falls
+    below it once N is large, and because one run's NEES stays correlated for minutes, the share
+    of epochs inside varies strongly from one seed set to the next (docs/performance.md "The NEES
+    band at 200 and 1000 runs"). Returns rows as :func:`band_fraction` (``inside``, ``above``,
+    ``below`` fractions of the run-epochs, ``mean``, ``epochs``: run-epochs counted)."""
+    s = ser[(ser.variant == variant) & (ser.quantity == quantity)]
+    lo, hi = mean_band(np.maximum(s.dof.to_numpy(float), 1e-9), np.ones(len(s)))
+    v, t = s.value.to_numpy(float), s.t_s.to_numpy(float)
+    out = {}
+    for key in ["all", *windows]:
+        w = np.ones(len(s), bool) if key == "all" else (t >= key[0]) & (t < key[1])
+        n = max(int(w.sum()), 1)
+        out[key] = {"inside": float(np.sum((v >= lo) & (v <= hi) & w) / n), "above": float(np.sum((v > hi) & w) / n),
+                    "below": float(np.sum((v < lo) & w) / n), "mean": float(v[w].mean()) if w.any() else float("nan"),
+                    "epochs": int(w.sum())}
+    return out
+
+
 def verdicts(ser: pd.DataFrame, variants) -> dict:
     """variant -> {"consistent": bool, "groups": {g: (time-avg NEES, lo, hi, status)}, "text": str}."""
     out = {}
