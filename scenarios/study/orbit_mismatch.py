@@ -194,7 +194,7 @@ def flight_figures(rr, case: Case | None = None, camera: int = 0) -> dict:
     inside = (nees >= NEES_BAND[0]) & (nees <= NEES_BAND[1])
     after = t_nees >= v.t_ns[mm].min() if len(mm) else np.zeros(len(nees), bool)
     out = dict(frames=int(len(m)), frames_with_sensitivity=int(has.sum()), edge_truth_km=h_truth / 1e3, edge_smoothed_km=h_s / 1e3, edge_smoothed_sigma_km=sig_s / 1e3,
-               nadir_rms_raw_deg=float(np.sqrt(np.mean(err_raw**2))), nadir_rms_deg=float(np.sqrt(np.mean(err**2))),
+               nadir_rms_raw_deg=_rms(err_raw), nadir_rms_deg=_rms(err),
                nadir_max_deg=float(err.max()), nadir_rms_state_deg=_rms(err[has]), nadir_rms_other_deg=_rms(err[~has]),
                nadir_rms_fits_height_deg=_rms(err_fits),
                containment_prior=_containment(err_raw, v.P_c[m], g, sigma_prior),
@@ -206,7 +206,7 @@ def flight_figures(rr, case: Case | None = None, camera: int = 0) -> dict:
                att_rms_smoothed_deg=s["truth"]["smoothed"]["att_rms_deg"],
                att_inside_3sigma_smoothed=_smoothed_inside_3sigma(rr),
                moon_found=int(len(mm)), moon_frames=_moon_frames(rr, camera),
-               moon_rms_deg=float(np.sqrt(np.mean(_angle_deg(v.e_c[mm], m_true) ** 2))) if len(mm) else math.nan)
+               moon_rms_deg=_rms(_angle_deg(v.e_c[mm], m_true)) if len(mm) else math.nan)
     if case is not None:
         out = dict(case=case.name, profile=case.profile, edge_render_km=case.height_m / 1e3, **out)
     return out
