@@ -244,6 +244,14 @@ def test_mistuned_variant_is_flagged(tmp_path):
     assert "att NEES" in v["mis 1/10"]["text"] and "optimistic" in v["mis 1/10"]["text"]
     page = (out / "report.html").read_text()
     assert "INCONSISTENT" in page and "mis 1/10" in page
+    # both readings of the attitude band in the summary; the optimistic variant's runs sit above
+    # the band of one chi2(3) value far more often than the 2.5 % of a consistent filter
+    assert "att in band, mean" in page and "att in band, per run" in page
+    from scenarios.study.report import run_band_fraction
+    ser = pd.read_parquet(out / "series.parquet")
+    labels = pd.read_parquet(out / "metrics.parquet").drop_duplicates("variant").set_index("variant_label").variant
+    assert run_band_fraction(ser, int(labels["mis 1/10"]))["all"]["above"] > 0.25
+    assert run_band_fraction(ser, int(labels["matched"]))["all"]["above"] < 0.10
     met = pd.read_parquet(out / "metrics.parquet")
     att = met[met.metric == "nees_att"].groupby("variant_label").value.mean()
     assert att["mis 1/10"] > 5 * att["matched"]
