@@ -546,7 +546,8 @@ def test_cli_tune(vlog, tmp_path, capsys):
     """``horizon-nav tune`` on a simulated log with the Earth target only: the Sun's white noise
     is reported unidentified with the reason, the GPS scale is estimated (the simulator's GPS
     errors follow its logged covariances: scale 1 within 4 standard errors), and the tuning file
-    is written and reads back."""
+    is written and reads back. With only the Sun's parameter asked for, nothing is estimated: the
+    reason and -log L at the prior are printed, no file is written, and the exit code is 2."""
     from scenarios.cli._main import main
     from scenarios.config.tuning import load_tuning
     out = tmp_path / "t.toml"
@@ -561,6 +562,15 @@ def test_cli_tune(vlog, tmp_path, capsys):
     e = [ln for ln in text.splitlines() if ln.startswith("gps_noise_scale")][0]
     se = float(e.split("+-")[1].split("%")[0]) / 100
     assert abs(math.log(t.gps_noise_scale)) < 4 * se
+    # nothing the flight can estimate: the reasons and the likelihood at the prior, no file, rc 2
+    none = tmp_path / "none.toml"
+    assert main(["tune", str(vlog), "--from", "T+60", "--to", "T+140", "--targets", "earth", "--quiet",
+                 "--params", "vector_white_sun", "-o", str(none), "-j", "0"]) == 2
+    cap = capsys.readouterr()
+    assert "no accepted sun measurement" in cap.out and not none.exists()
+    nll = float(cap.out.split("-log L ")[1].split(" at the prior")[0])
+    assert math.isfinite(nll)
+    assert "no parameter of --params is estimated from this flight" in cap.err and str(none) in cap.err
     assert main(["tune", str(vlog), "--params", "nonsense", "-o", str(out), "--quiet"]) == 2
     assert main(["tune", str(vlog), "--params", "vector_cov_scale_hor_camera_0", "-o", str(out), "--quiet"]) == 2
     assert "unknown parameter 'vector_cov_scale_hor_camera_0'" in capsys.readouterr().err

@@ -119,6 +119,9 @@ def run(args) -> int:
         except ValueError as e:
             raise UserError(f"--params: {e}") from None
     print(res.report())
+    if not any(e.estimated for e in res.estimates):
+        raise UserError(f"{args.log}: no parameter of --params is estimated from this flight (the reasons above); "
+                        f"{args.output} not written")
     header = (f"Filter tuning estimated by `horizon-nav tune` from {Path(args.log).name} (maximum likelihood of the\n"
               f"innovations; standard errors from the Fisher information; base: {args.tuning or '003 table 3'}).\n"
               f"-log L {res.nll_prior:.1f} -> {res.nll:.1f} over {res.n_measurements} measurement blocks.")

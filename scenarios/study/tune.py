@@ -711,7 +711,7 @@ def _tune(inputs, base, names, max_iter, max_rounds, progress, mapper, cameras) 
     obj = Objective(inputs, base, params, progress)
     obj.gps, obj.vectors, obj.keys = obj0.gps, obj0.vectors, obj0.keys
     warn = []
-    f_prior = obj(obj.theta0)[0] if params else float("nan")
+    f_prior = obj(obj.theta0)[0] if params else obj0(np.zeros(0))[0]
     theta, rounds, converged, f, iset, info = obj.theta0.copy(), 0, True, f_prior, None, np.zeros((0, 0))
     while params and rounds < max_rounds:
         rounds += 1
