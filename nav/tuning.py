@@ -14,7 +14,9 @@ default, an unknown table or key is an error naming it::
                 [states.gyro_gm] takes correlation_time_s, > 0)
     [vectors]   targets, white_noise, gm_mode, correlation_time_s, gm_default_sigma_deg,
                 white_noise_<target>, cov_scale_<target>  (target: hor, sun, moon),
-                cov_scale_<target>_camera_<k>  (k: the log's camera number, /camera_<k>, 1-based)
+                cov_scale_<target>_camera_<k>  (k: the log's camera number, /camera_<k>, 1-based),
+                cov_scale_edge_state = "E" | "C" | "off"  (the edge-height state's mode the
+                scales were estimated with; `horizon-nav tune` writes it)
     [gps]       noise_scale
     [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
     [filter]    max_cov_interval_s, gate_probability, first_update_iterations,
@@ -134,6 +136,11 @@ class Tuning:
         Per target, a factor on the 1-sigma of the vision's covariance P_c (003 eq. (33)): P_c is
         multiplied by its square wherever it enters (the Gauss-Markov stationary covariance of
         eqs. (44)-(45), or R with the Gauss-Markov states off); default 1 (:meth:`vector_cov_scale_for`).
+    vector_cov_scale_edge_mode : str
+        The ``edge_height`` mode the P_c scales were estimated with (``[vectors]
+        cov_scale_edge_state``, written by ``horizon-nav tune``; "" when not recorded). With the
+        state on the vectors carry P_c given the edge height, without it the marginal P_c, so a
+        scale estimated one way is wrong the other way (:func:`consistency_warnings`).
     vector_cov_scale_by_camera : tuple of ((int, str), float)
         Per camera and target, a factor that replaces the target's for that camera's vectors:
         ``((camera_index, target), value)`` with the filter's camera index (0-based; TOML
@@ -214,6 +221,7 @@ class Tuning:
     vector_white_by_target: tuple = ()
     vector_cov_scale_by_target: tuple = ()
     vector_cov_scale_by_camera: tuple = ()
+    vector_cov_scale_edge_mode: str = ""
     gps_noise_scale: float = 1.0
     first_update_iterations: int = 0
     first_update_att_sigma: float = math.radians(0.3)
@@ -354,7 +362,7 @@ _PER_TARGET = {"white_noise_": "vector_white_by_target", "cov_scale_": "vector_c
 #: ``[vectors] cov_scale_<target>_camera_<k>``: the per-camera P_c scale (k checked by _per_camera)
 _PER_CAMERA = re.compile(r"cov_scale_(" + "|".join(VECTOR_TARGETS) + r")_camera_(.*)")
 _OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE),
-               "vectors": {"gm_mode", "targets"} | {p + t for p in _PER_TARGET for t in VECTOR_TARGETS},
+               "vectors": {"gm_mode", "targets", "cov_scale_edge_state"} | {p + t for p in _PER_TARGET for t in VECTOR_TARGETS},
                "initial": set(), "filter": {"first_update_iterations", "misalignment_reset", "second_order_noise"}, "gps": set(),
                "recovery": {"enabled", "gated_fixes"}}
 
@@ -395,6 +403,11 @@ def _vector_choices(vec: dict, kw: dict) -> None:
         if vec["gm_mode"] not in MODES:
             raise ValueError(f"tuning [vectors] gm_mode: expected one of {MODES}, got {vec['gm_mode']!r}")
         kw["vector_gm_mode"] = vec["gm_mode"]
+    if "cov_scale_edge_state" in vec:
+        if vec["cov_scale_edge_state"] not in MODES:
+            raise ValueError(f"tuning [vectors] cov_scale_edge_state: expected one of {MODES}, "
+                             f"got {vec['cov_scale_edge_state']!r}")
+        kw["vector_cov_scale_edge_mode"] = vec["cov_scale_edge_state"]
     if "targets" in vec:
         t = tuple(vec["targets"])
         if not t or any(x not in ("hor", "sun", "moon") for x in t):
@@ -550,6 +563,33 @@ def tuning_from_dict(d: dict) -> Tuning:
     for key, (unit_key, scale) in _GROUPS.items():
         kw[key] = _group(states, key, unit_key, scale, getattr(base, key))
     return replace(base, **kw)
+
+
+def consistency_warnings(t: Tuning) -> list[str]:
+    """What in ``t`` contradicts itself, one sentence each: P_c scales estimated with the
+    edge-height state off and used with it on, or the other way round
+    (:attr:`Tuning.vector_cov_scale_edge_mode`). Empty when nothing does.
+
+    Examples
+    --------
+    >>> t = tuning_from_toml('[vectors]\\ncov_scale_hor = 0.2\\ncov_scale_edge_state = "off"\\n'
+    ...                      '[states.edge_height]\\nmode = "E"\\n')
+    >>> "optimistic" in consistency_warnings(t)[0]
+    True
+    >>> consistency_warnings(t.with_(edge_height=StateGroupTuning("off", 20e3)))
+    []
+    """
+    was = t.vector_cov_scale_edge_mode
+    scaled = bool(t.vector_cov_scale_by_target or t.vector_cov_scale_by_camera)
+    if not was or not scaled or (was != "off") == t.edge_height.on:
+        return []
+    how = ("with the edge-height state off, for the vectors' covariance with the height's uncertainty in it; "
+           "with the state on the vectors carry the covariance given the height, which these scales make optimistic"
+           if was == "off" else
+           "with the edge-height state on, for the vectors' covariance given the height; with the state off the "
+           "vectors carry the height's uncertainty as well, which these scales were not estimated for")
+    return [f"tuning: the [vectors] cov_scale_* keys were estimated {how}; "
+            f"estimate them again with `horizon-nav tune` and [states.edge_height] mode = {t.edge_height.mode!r}"]
 
 
 def tuning_from_toml(text: str) -> Tuning:

@@ -540,6 +540,12 @@ def test_per_camera_pc_scale_recovered(coast):
     print(f"NIS means per camera: {own}; shared: {one}")
     (m1, n1), (m2, n2) = one[("hor", 0)], one[("hor", 1)]
     assert m1 > band(n1)[1] and m2 < band(n2)[0]
+    # the file records the edge-height mode the horizon scales were estimated with (off here)
+    from nav.tuning import tuning_from_toml
+    from scenarios.study.tune import tuning_toml
+    t = tuning_from_toml(tuning_toml(res))
+    assert t.vector_cov_scale_edge_mode == "off"
+    assert dict(t.vector_cov_scale_by_camera) == pytest.approx(dict(res.tuning.vector_cov_scale_by_camera), rel=1e-5)
 
 
 def test_cli_tune(vlog, tmp_path, capsys):

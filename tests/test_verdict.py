@@ -126,6 +126,29 @@ def test_clean_flight_is_ok(flights, capsys):
     assert meta["status"] == "OK" and json.loads(meta["reasons"]) == []
 
 
+def test_pc_scales_estimated_without_the_edge_state_are_degraded(flights, capsys):
+    """A tuning whose P_c scales `tune` estimated with the edge-height state off
+    (``cov_scale_edge_state = "off"``, as scenarios/library/tuning/atek-ml.toml), replayed with
+    the state on: the vectors then carry P_c given the height, which those scales make optimistic
+    (attitude NEES mean 10.9 on the rendered ATEK 45 km flight, docs/vision.md). The replay says
+    so in one warning and the verdict is DEGRADED for it; the same file with the state off, or
+    without the record, gives no warning; a mode that is not one is refused naming the key."""
+    from nav.tuning import consistency_warnings, tuning_from_toml
+    logs, fl, d = flights
+    scales = '[vectors]\ncov_scale_hor = 0.2\ncov_scale_edge_state = "off"\n'
+    on = d / "scales-edge-on.toml"
+    on.write_text(scales + '[states.edge_height]\nmode = "E"\n')
+    rc, out, _, s = _replay(logs["clean"], d, capsys, "--tuning", str(on))
+    warn = consistency_warnings(tuning_from_toml(on.read_text()))
+    assert len(warn) == 1 and "optimistic" in warn[0] and "cov_scale" in warn[0]
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED" and s["warnings"] == warn
+    assert f"WARNING: {warn[0]}" in out and "1 input warning(s): " + warn[0] in s["verdict"]["reasons"]
+    for text in (scales, scales.replace('cov_scale_edge_state = "off"\n', "") + '[states.edge_height]\nmode = "E"\n'):
+        assert consistency_warnings(tuning_from_toml(text)) == []
+    with pytest.raises(ValueError, match="cov_scale_edge_state: expected one of"):
+        tuning_from_toml('[vectors]\ncov_scale_edge_state = "on"\n')
+
+
 def test_truncated_log_is_degraded_and_says_so(flights, capsys):
     logs, fl, d = flights
     rc, out, _, s = _replay(logs["truncated"], d, capsys)

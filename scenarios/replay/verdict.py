@@ -13,7 +13,8 @@ track, the IMU time stamps):
   the offered measurements;
 * IMU gaps (steps longer than ``Tuning.max_imu_gap_s``), the recoveries, steps in the GPS track
   that its own velocity does not explain, the largest position sigma, and the input warnings
-  (the log reader's, truncation included, and IMU samples the filter replaced).
+  (the log reader's, truncation included, IMU samples the filter replaced, and a tuning that
+  contradicts itself, `nav.tuning.consistency_warnings`).
 
 :func:`judge` turns them into a :class:`Verdict`. The design goal: no wrong trajectory leaves
 with OK or DEGRADED (exit code 0); a run is FAILED when the filter's statistics show that its
@@ -254,6 +255,7 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
     cam_numbers : camera numbers of the filter's camera indices
     """
     from nav.recovery import gap_threshold_s
+    from nav.tuning import consistency_warnings
     a, b = int(res.t_ns[0]), int(res.t_ns[-1])
     tp = inputs.mission_time
     recs = _records(res.innovations, cam_numbers)
@@ -261,7 +263,7 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
     sensors = {src: _source_stats(d, t_tail, a, b) for src, d in sorted(recs.items())}
     imu_gap = gaps(res.t_ns, a, b, tuning.max_imu_gap_s)
     imu_gap["recovery_threshold_s"] = gap_threshold_s((res.t_ns - a) / NS, tuning)
-    warnings = list(getattr(inputs, "notes", []))
+    warnings = list(getattr(inputs, "notes", [])) + consistency_warnings(tuning)
     for k, what in (("imu_nonfinite", "non-finite"), ("imu_saturated", "saturated"),
                     ("imu_time_not_increasing", "not increasing in time")):
         if res.rejected.get(k):

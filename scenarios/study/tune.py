@@ -923,6 +923,10 @@ def tuning_toml(result: TuneResult, base_overrides: dict | None = None, header: 
             tables.setdefault(tb, {})[key] = val
             _comment(comments, (tb, key), p, f"{what}, standard error {100 * e.se_log:.1f} % (1 sigma, log-parameter); "
                                               f"prior {e.prior * e.to_unit:.4g} {e.unit}")
+    if any(e.estimated and e.name.startswith("vector_cov_scale_hor") for e in result.estimates):
+        tables.setdefault("vectors", {})["cov_scale_edge_state"] = result.tuning.edge_height.mode
+        comments[("vectors", "cov_scale_edge_state")] = ("the edge-height state the P_c scales were estimated with: "
+                                                         "a replay with it turned on or off warns")
     for tb in sorted(tables):
         lines += ["", f"[{tb}]"]
         for key, val in tables[tb].items():
