@@ -206,7 +206,7 @@ def flight_figures(rr, case: Case | None = None, camera: int = 0) -> dict:
                att_rms_smoothed_deg=s["truth"]["smoothed"]["att_rms_deg"],
                att_inside_3sigma_smoothed=_smoothed_inside_3sigma(rr),
                moon_found=int(len(mm)), moon_frames=_moon_frames(rr, camera),
-               moon_rms_deg=_rms(_angle_deg(v.e_c[mm], m_true)) if len(mm) else math.nan)
+               moon_rms_deg=_rms(_angle_deg(v.e_c[mm], m_true)))
     if case is not None:
         out = dict(case=case.name, profile=case.profile, edge_render_km=case.height_m / 1e3, **out)
     return out

@@ -72,14 +72,8 @@ def band_fraction(ser: pd.DataFrame, variant: int, quantity: str = "nees_att", w
     (optimistic: the filter's covariance too small) and ``below`` (pessimistic) as fractions of
     the epochs, ``mean`` the time average of the MC mean NEES, and ``epochs``."""
     m = mc_series(ser, variant, quantity)
-    out = {}
-    for key in ["all", *windows]:
-        w = m if key == "all" else m[(m.t_s >= key[0]) & (m.t_s < key[1])]
-        n = max(len(w), 1)
-        out[key] = {"inside": float(((w["mean"] >= w.lo) & (w["mean"] <= w.hi)).sum() / n),
-                    "above": float((w["mean"] > w.hi).sum() / n), "below": float((w["mean"] < w.lo).sum() / n),
-                    "mean": float(w["mean"].mean()) if len(w) else float("nan"), "epochs": int(len(w))}
-    return out
+    return _band_rows(m["mean"].to_numpy(float), m.t_s.to_numpy(float), m.lo.to_numpy(float), m.hi.to_numpy(float),
+                      windows)
 
 
 def run_band_fraction(ser: pd.DataFrame, variant: int, quantity: str = "nees_att", windows=()) -> dict:
@@ -95,10 +89,15 @@ def run_band_fraction(ser: pd.DataFrame, variant: int, quantity: str = "nees_att
     ``below`` fractions of the run-epochs, ``mean``, ``epochs``: run-epochs counted)."""
     s = ser[(ser.variant == variant) & (ser.quantity == quantity)]
     lo, hi = mean_band(np.maximum(s.dof.to_numpy(float), 1e-9), np.ones(len(s)))
-    v, t = s.value.to_numpy(float), s.t_s.to_numpy(float)
+    return _band_rows(s.value.to_numpy(float), s.t_s.to_numpy(float), lo, hi, windows)
+
+
+def _band_rows(v, t, lo, hi, windows) -> dict:
+    """The rows of :func:`band_fraction` and :func:`run_band_fraction`: values ``v`` at times
+    ``t`` [s] against their bands ``lo``..``hi``, over all of them and per window (t0, t1)."""
     out = {}
     for key in ["all", *windows]:
-        w = np.ones(len(s), bool) if key == "all" else (t >= key[0]) & (t < key[1])
+        w = np.ones(len(v), bool) if key == "all" else (t >= key[0]) & (t < key[1])
         n = max(int(w.sum()), 1)
         out[key] = {"inside": float(np.sum((v >= lo) & (v <= hi) & w) / n), "above": float(np.sum((v > hi) & w) / n),
                     "below": float(np.sum((v < lo) & w) / n), "mean": float(v[w].mean()) if w.any() else float("nan"),
