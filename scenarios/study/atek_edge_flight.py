@@ -15,9 +15,9 @@ the smoother's height and its sigma, the nadir RMS as fitted and moved to the le
 RMS.
 
 Run: ``python -m scenarios.study.atek_edge_flight [--heights KM ...] [--profiles NAME ...]
-[--edge limb|threshold] [--out FILE.json]``: one line per camera and case as it finishes (about
-1.4 minutes per case on 2 cores, the render and the vision dominating; the JSON is rewritten after
-each). The slow tests of tests/test_atek_edge_flight.py run it.
+[--edge limb|threshold] [--out FILE.json]``: one line per camera and case as it finishes (the
+render and the vision dominate its time, docs/vision.md; the JSON is rewritten after each). The
+slow tests of tests/test_atek_edge_flight.py run it.
 """
 from __future__ import annotations
 
