@@ -67,7 +67,7 @@ from nav.error_state import BlockTransition, StateLayout, build_layout
 from nav.filter_state import FilterState
 from nav.imu_errors import ImuCalibration
 from nav.quantisation import quantisation_rates
-from nav.recovery import Recovery
+from nav.recovery import MisalignmentReopening, Recovery
 from nav.rotation import angle_between, matrix_to_quat, matrix_to_rotvec, triad
 from nav.schmidt import symmetrize
 from nav.tuning import Tuning
@@ -183,8 +183,9 @@ class NavResult:
     clock_offset: np.ndarray | None = None
     #: (M, n_cam) its 1-sigma [s] (0 where the offset is not a filter state)
     clock_offset_sigma: np.ndarray | None = None
-    #: re-initialisations from GPS after an IMU gap or a divergence (:mod:`nav.recovery`):
-    #: ``(t_ns, reason, details)`` with reason ``"imu_gap"`` or ``"divergence"``
+    #: recoveries (:mod:`nav.recovery`), ``(t_ns, reason, details)``: re-initialisations from GPS
+    #: after an IMU gap or a divergence (reason ``"imu_gap"``, ``"divergence"``) and re-opened
+    #: camera misalignments (``"camera_gated"``, details ``camera`` the camera index)
     recoveries: list = field(default_factory=list)
     #: (K, n) at each covariance epoch, the fed-back estimate of every estimated state beyond dx,
     #: dv, psi in the layout's coordinates (:func:`estimates_from_fed`); 0 for the navigation and
@@ -465,7 +466,9 @@ def run(imu: ImuData, init: InitialState, tuning: Tuning, *, gps: GpsData | None
         st.follow_rates(quantisation_rates(ts, w_b, tuning.gyro_gm_quantum, tuning.gyro_gm_quantum_scale,
                                            tuning.gyro_gm_quantum_window_s))
     rcv = Recovery(ts, t_ns, tuning, sources)
-    loop = _Loop(st, rec, sources, events, ev_idx.tolist(), t_ns, ts, fw, imu.sample == "average", rejected, rcv)
+    reo = MisalignmentReopening(tuning, layout, len(R_bc), rcv.events)
+    loop = _Loop(st, rec, sources, events, ev_idx.tolist(), t_ns, ts, fw, imu.sample == "average", rejected, rcv,
+                 reo)
     loop.run(max_block)
     if unaided:
         UX, UV, UQ = ins.propagate(init.x_e, init.v_e, init.q_eb, ts, f_b, w_b, sample=imu.sample)
@@ -492,9 +495,9 @@ class _Loop:
     """The epoch loop: the measurements at the current sample, then the propagation to the next
     epoch (the next measurement's sample or ``max_block`` samples on, whichever comes first)."""
 
-    def __init__(self, st, rec, sources, events, ev_idx, t_ns, ts, fw, avg, rejected, rcv):
+    def __init__(self, st, rec, sources, events, ev_idx, t_ns, ts, fw, avg, rejected, rcv, reo):
         self.st, self.rec, self.sources, self.events, self.ev_idx = st, rec, sources, events, ev_idx
-        self.rcv = rcv
+        self.rcv, self.reo = rcv, reo
         self.t_l, self.t_ns, self.ts, self.fw, self.avg, self.rejected = t_ns.tolist(), t_ns, ts, fw, avg, rejected
         self.stack = EpochStack(st.n, st.tuning.gate_probability)
 
@@ -505,6 +508,8 @@ class _Loop:
             e_ptr, dx = self.measure(k, e_ptr)
             if dx is not None:
                 rec.update_epoch(k, self.t_l[k], st, dx)
+            if self.reo.due:
+                self.reo.reopen(st, self.t_l[k])
             if k >= N - 1:
                 break
             k_end = min(k + max_block, N - 1)
@@ -550,6 +555,8 @@ class _Loop:
             self.rec.triad_pairs(stack.triad)
         if rcv.watch and rcv.diverged(self.rejected, innovations, n0):
             self.recover(k, kk, e0, False)
+        if self.reo.on:
+            self.reo.count(innovations, n0)
         return e_ptr, dx
 
     def relinearise(self, k: int, kk: int, e0: int, e1: int, prior, dx):

@@ -1,4 +1,5 @@
-"""Recovery of the filter after an IMU gap or a divergence: re-initialisation from GPS.
+"""Recovery of the filter after an IMU gap or a divergence (re-initialisation from GPS), and of a
+camera whose misalignment has locked onto a wrong value (re-opening its covariance).
 
 The rules (:class:`Recovery`, tuning entries ``Tuning.recovery*``, TOML table ``[recovery]``):
 
@@ -26,8 +27,22 @@ and correlations) and takes position and velocity from the fix:
   replaced); the attitude variance grows by ``recovery_att_sigma_gap^2`` or
   ``recovery_att_sigma_divergence^2`` per axis.
 
-Each recovery is recorded as ``(t_ns, reason, details)`` (reason ``"imu_gap"`` or
-``"divergence"``) in ``NavResult.recoveries`` and logged.
+A camera's vectors can lock it out. One vector far from the truth with a tight covariance,
+accepted while the attitude and misalignment priors are wide, moves the estimated misalignment
+onto itself and shrinks its covariance; every later correct vector of that camera is then gated,
+and the misalignment stays wrong (:class:`MisalignmentReopening`):
+
+* **Camera lock-out.** ``recovery_gated_vectors`` consecutive vectors of one camera (Earth, Sun,
+  Moon; default 20) rejected by the chi-square gate, with none of them accepted, re-open that
+  camera's misalignment: its variance grows by the prior's, ``camera_misalignment.sigma^2`` per
+  axis. The growth is process noise added between the epoch's update and the next propagation, so
+  the smoother treats it as such (its gain across the re-opening is small). Only an estimated
+  misalignment is re-opened; a camera whose vectors stay gated after the re-opening is re-opened
+  again after as many more, so a misalignment wrong by several prior sigmas is reached in steps.
+  The attitude is left alone: the other cameras and GPS hold it.
+
+Each recovery is recorded as ``(t_ns, reason, details)`` (reason ``"imu_gap"``, ``"divergence"``
+or ``"camera_gated"``) in ``NavResult.recoveries`` and logged.
 """
 from __future__ import annotations
 
@@ -39,6 +54,7 @@ from nav.earth import OMEGA_E
 from nav.filter_state import extrapolate
 from nav.rotation import quat_to_matrix
 from nav.schmidt import GATED, REASONS
+from nav.tuning import VECTOR_TARGETS
 
 log = logging.getLogger("nav.navigator")   # the run's logger: recoveries are part of its report
 
@@ -174,3 +190,46 @@ class Recovery:
                     "%.2f m/s; %s)", reason, t_m, jump_x, jump_v,
                     ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in details.items()))
         return True
+
+
+class MisalignmentReopening:
+    """Watches each camera's vectors for a lock-out and re-opens its misalignment (module
+    docstring). The loop calls :meth:`count` after each epoch's update and :meth:`reopen` after
+    the epoch's posterior is recorded, before the next propagation."""
+
+    def __init__(self, tuning, layout, n_cam: int, events: list):
+        self.n_max = tuning.recovery_gated_vectors
+        self.on = (bool(tuning.recovery) and self.n_max > 0 and n_cam > 0
+                   and tuning.camera_misalignment.estimated)
+        self.var = tuning.camera_misalignment.sigma ** 2
+        self.slices = [layout[layout.cam_name(c)] for c in range(n_cam)] if self.on else []
+        self.streak = [0] * n_cam
+        self.due = []
+        self.events = events
+
+    def count(self, innovations: list, n0: int) -> None:
+        """The epoch's innovations from ``n0`` on: per camera, its vectors gated in a row; a
+        camera reaching ``recovery_gated_vectors`` is due."""
+        for inn in innovations[n0:]:
+            c = inn.camera
+            if c < 0 or inn.kind not in VECTOR_TARGETS:
+                continue
+            if inn.accepted:
+                self.streak[c] = 0
+            elif inn.reason == REASONS[GATED]:
+                self.streak[c] += 1
+                if self.streak[c] >= self.n_max and c not in self.due:
+                    self.due.append(c)
+
+    def reopen(self, st, t_ns: int) -> None:
+        """Grow each due camera's misalignment variance by the prior's and record the event."""
+        for c in self.due:
+            i = np.arange(self.slices[c].start, self.slices[c].stop)
+            st.P[i, i] += self.var
+            info = {"camera": c, "gated_vectors": self.streak[c], "sigma_added_deg": float(np.degrees(np.sqrt(self.var)))}
+            self.events.append((int(t_ns), "camera_gated", info))
+            log.warning("recovery (camera_gated) at %d ns: camera index %d's misalignment re-opened after %d of its "
+                        "vectors in a row were rejected by the gate (%.3g deg 1 sigma added per axis)",
+                        t_ns, c, self.streak[c], info["sigma_added_deg"])
+            self.streak[c] = 0
+        self.due.clear()

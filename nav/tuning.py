@@ -21,7 +21,7 @@ default, an unknown table or key is an error naming it::
     [initial]   attitude_sigma_deg, position_sigma_m, velocity_sigma_m_s
     [filter]    max_cov_interval_s, gate_probability, first_update_iterations,
                 second_order_noise, misalignment_reset
-    [recovery]  enabled, gap_s, gap_samples, gated_fixes, velocity_sigma_m_s,
+    [recovery]  enabled, gap_s, gap_samples, gated_fixes, gated_vectors, velocity_sigma_m_s,
                 attitude_sigma_gap_deg, attitude_sigma_divergence_deg
 
 Every error group is ``"E"`` (estimated), ``"C"`` (considered only, Schmidt-Kalman, 003 §6.1 and
@@ -189,6 +189,9 @@ class Tuning:
     recovery_gated_fixes : int
         Consecutive GPS fixes with a block rejected by the chi-square gate that mark a divergence
         (0: no divergence detection).
+    recovery_gated_vectors : int
+        Consecutive vectors of one camera (Earth, Sun, Moon) rejected by the chi-square gate after
+        which its estimated misalignment is re-opened by its prior variance (0: never).
     recovery_vel_sigma : float
         1-sigma [m/s] added to the re-initialised velocity's covariance (the fix's own covariance,
         or that of the two fixes' difference).
@@ -240,6 +243,7 @@ class Tuning:
     recovery_gap_s: float = 2.0
     recovery_gap_samples: float = 50.0
     recovery_gated_fixes: int = 10
+    recovery_gated_vectors: int = 20
     recovery_vel_sigma: float = 0.5
     recovery_att_sigma_gap: float = math.radians(5.0)
     recovery_att_sigma_divergence: float = math.radians(10.0)
@@ -364,7 +368,7 @@ _PER_CAMERA = re.compile(r"cov_scale_(" + "|".join(VECTOR_TARGETS) + r")_camera_
 _OTHER_KEYS = {"imu": set(IMU_WHITE_NOISE),
                "vectors": {"gm_mode", "targets", "cov_scale_edge_state"} | {p + t for p in _PER_TARGET for t in VECTOR_TARGETS},
                "initial": set(), "filter": {"first_update_iterations", "misalignment_reset", "second_order_noise"}, "gps": set(),
-               "recovery": {"enabled", "gated_fixes"}}
+               "recovery": {"enabled", "gated_fixes", "gated_vectors"}}
 
 
 def _table(d: dict, name: str) -> dict:
@@ -455,13 +459,15 @@ def _count(table: str, key: str, n) -> int:
 
 
 def _recovery_choices(rec: dict, kw: dict) -> None:
-    """``[recovery]`` enabled (a boolean) and gated_fixes (a non-negative integer)."""
+    """``[recovery]`` enabled (a boolean), gated_fixes and gated_vectors (non-negative integers)."""
     if "enabled" in rec:
         if not isinstance(rec["enabled"], bool):
             raise ValueError(f"tuning [recovery] enabled: expected true or false, got {rec['enabled']!r}")
         kw["recovery"] = rec["enabled"]
     if "gated_fixes" in rec:
         kw["recovery_gated_fixes"] = _count("recovery", "gated_fixes", rec["gated_fixes"])
+    if "gated_vectors" in rec:
+        kw["recovery_gated_vectors"] = _count("recovery", "gated_vectors", rec["gated_vectors"])
 
 
 def _group_tau(states: dict, kw: dict, group: str, field_: str, nonzero: bool = False) -> dict:

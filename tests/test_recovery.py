@@ -115,10 +115,10 @@ def test_gap_rule():
 
 def test_recovery_tuning_table():
     t = tuning_from_dict({"recovery": {"enabled": False, "gap_s": 5.0, "gap_samples": 10, "gated_fixes": 3,
-                                       "velocity_sigma_m_s": 1.0, "attitude_sigma_gap_deg": 4.0,
+                                       "gated_vectors": 7, "velocity_sigma_m_s": 1.0, "attitude_sigma_gap_deg": 4.0,
                                        "attitude_sigma_divergence_deg": 20.0}})
-    assert (t.recovery, t.recovery_gap_s, t.recovery_gap_samples, t.recovery_gated_fixes, t.recovery_vel_sigma) == \
-        (False, 5.0, 10.0, 3, 1.0)
+    assert (t.recovery, t.recovery_gap_s, t.recovery_gap_samples, t.recovery_gated_fixes, t.recovery_gated_vectors,
+            t.recovery_vel_sigma) == (False, 5.0, 10.0, 3, 7, 1.0)
     assert t.recovery_att_sigma_gap == pytest.approx(np.radians(4.0))
     assert t.recovery_att_sigma_divergence == pytest.approx(np.radians(20.0))
     assert tuning_from_dict({}) == Tuning()
@@ -126,6 +126,8 @@ def test_recovery_tuning_table():
         tuning_from_dict({"recovery": {"gap_ms": 3}})
     with pytest.raises(ValueError, match="gated_fixes"):
         tuning_from_dict({"recovery": {"gated_fixes": 2.5}})
+    with pytest.raises(ValueError, match=r"\[recovery\] gated_vectors: expected a non-negative integer"):
+        tuning_from_dict({"recovery": {"gated_vectors": -1}})
     with pytest.raises(ValueError, match="enabled"):
         tuning_from_dict({"recovery": {"enabled": "yes"}})
 
@@ -199,3 +201,76 @@ def test_recovery_table_in_a_tuning_file(tmp_path):
     p.write_text("[recovery]\ngaps = 3.0\n")
     with pytest.raises(ValueError, match=r"t\.toml.*\[recovery\].*'gaps'"):
         load_tuning(p)
+
+
+@pytest.fixture(scope="module")
+def atek_vectors():
+    """The atek flight to T+200 with the stand-in vision errors (tests/test_navigator.py), and the
+    same vectors with camera 0's first horizon vector turned 4 deg across its line of sight at the
+    stand-in's 0.05 deg covariance: a gross error the covariance does not hold."""
+    import dataclasses
+    from nav.measurements import tangent_basis
+    from nav.rotation import rotvec_to_matrix
+    from scenarios.sim.scenario import load_scenario
+    from scenarios.sim.simulate import simulate_flight
+    fi = flight_inputs(simulate_flight(load_scenario("atek"), seed=3, duration=200.0), 60.0, seed=3)
+    v = fi.vectors
+    j = int(np.flatnonzero((v.camera == 0) & (v.target == "hor"))[0])
+    e = v.e_c.copy()
+    e[j] = rotvec_to_matrix(np.radians(4.0) * tangent_basis(e[j])[:, 0]) @ e[j]
+    return fi, dataclasses.replace(v, e_c=e)
+
+
+def _lockout_run(fi, vectors, gated_vectors: int) -> dict:
+    from nav.smoother import rts_smooth
+    from tests.test_navigator import attitude_errors
+    logging.disable(logging.WARNING)
+    try:
+        res = run(fi.imu, truth_init(fi), Tuning().with_(recovery_gated_vectors=gated_vectors), gps=fi.gps,
+                  vectors=vectors, R_bc=fi.R_bc_nominal, store_for_smoother=True, unaided=False)
+    finally:
+        logging.disable(logging.NOTSET)
+    t_re = res.recoveries[0][0] if res.recoveries else 0
+    hor0 = [i for i in res.innovations if i.camera == 0 and i.kind == "hor"]
+    sm = rts_smooth(res)
+    q_true = fi.truth.q_eb[fi.truth_idx[fi.start_idx:]]
+    aided = res.t_ns > t_re
+    rms = [float(np.degrees(np.sqrt(np.mean(np.sum(attitude_errors(q, q_true[i][aided[i]]) ** 2, 1)))))
+           for q, i in ((res.q_eb[aided], np.arange(res.t_ns.size)), (sm.q_eb[aided[sm.idx]], sm.idx))]
+    return {"res": res, "hor0": hor0, "after": float(np.mean([i.accepted for i in hor0 if i.t_ns > t_re])),
+            "err": np.degrees(res.misalignment[-1, 0] - fi.psi_c_true[0]),
+            "sig3": 3 * np.degrees(res.misalignment_sigma[-1, 0]), "rms_fwd": rms[0], "rms_smoothed": rms[1]}
+
+
+def test_camera_lockout_reopens_misalignment(atek_vectors):
+    """A camera whose first horizon vector is 4 deg off with a 0.05 deg covariance, accepted while
+    the misalignment prior is wide (1 deg): without the re-opening the misalignment locks onto it
+    (over 3 sigma off, under 5 % of the camera's later horizon vectors accepted). With it
+    (``[recovery] gated_vectors``, 20), the 20th gated vector in a row re-opens camera 0's
+    misalignment once; afterwards every one of its vectors is accepted, the final misalignment is
+    inside its 3 sigma of the simulated one, and the smoother, which sees the re-opening as process
+    noise, is finite and no worse than the forward attitude after it. Truth: the simulation's."""
+    fi, bad = atek_vectors
+    off, on = _lockout_run(fi, bad, 0), _lockout_run(fi, bad, 20)
+    print(f"locked: misalignment error {off['err'].round(3)} deg (3 sigma {off['sig3'].round(3)}), "
+          f"{100 * np.mean([i.accepted for i in off['hor0']]):.1f} % of camera 0's horizon vectors accepted; "
+          f"re-opened: {on['res'].recoveries}, error {on['err'].round(3)} deg (3 sigma {on['sig3'].round(3)}), "
+          f"{100 * on['after']:.1f} % accepted after it, attitude RMS after it forward {on['rms_fwd']:.3f} / smoothed "
+          f"{on['rms_smoothed']:.3f} deg")
+    assert off["res"].recoveries == []
+    assert np.any(np.abs(off["err"]) > off["sig3"]) and np.mean([i.accepted for i in off["hor0"]]) < 0.05
+    (t_re, reason, det), = on["res"].recoveries
+    gated = [i for i in on["hor0"] if i.reason == "chi-square gate"]
+    assert (reason, det["camera"], det["gated_vectors"]) == ("camera_gated", 0, 20) and t_re == gated[19].t_ns
+    assert on["after"] == 1.0
+    assert np.all(np.abs(on["err"]) < on["sig3"])
+    assert np.isfinite(on["rms_smoothed"]) and on["rms_smoothed"] <= on["rms_fwd"]
+
+
+def test_camera_reopening_leaves_a_clean_flight_alone(atek_vectors):
+    """On the same flight without the bad vector no camera is gated 20 times in a row, and the
+    run is the one without the rule (the same estimates to the last bit)."""
+    fi, _ = atek_vectors
+    on, off = _lockout_run(fi, fi.vectors, 20), _lockout_run(fi, fi.vectors, 0)
+    assert on["res"].recoveries == []
+    assert np.array_equal(on["res"].q_eb, off["res"].q_eb) and np.array_equal(on["res"].misalignment, off["res"].misalignment)

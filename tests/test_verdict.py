@@ -65,6 +65,14 @@ def flights(tmp_path_factory):
     bad.gps.position[nofix] = np.nan
     bad.gps.velocity[nofix] = np.nan
     logs["nofix"] = write_log(bad, d / "nofix.mcap", vectors=vec)
+    # camera 1's first Earth vector turned 4 deg across its line of sight (covariance kept): a
+    # gross error accepted while the priors are wide, which locks the camera's misalignment
+    from nav.measurements import tangent_basis
+    from nav.rotation import rotvec_to_matrix
+    lock = copy.deepcopy(vec)
+    j = int(np.flatnonzero((lock.camera == 1) & (lock.target == "earth"))[0])
+    lock.e_c[j] = rotvec_to_matrix(np.radians(4.0) * tangent_basis(lock.e_c[j])[:, 0]) @ lock.e_c[j]
+    logs["lockout"] = write_log(fl, d / "lockout.mcap", vectors=lock)
     # IMU samples missing: 20 s from T+100 (a gap), or everything after T_BREAK (a cut table)
     t = fl.imu.t
     for name, drop in (("imu_gap", (t > 100.0) & (t < 120.0)), ("imu_cut", t > T_BREAK)):
@@ -193,6 +201,25 @@ def test_gps_corrupted_after_mid_flight_fails(flights, capsys, name, step_m):
     assert rec[0]["details"]["position_jump_m"] > 0.9 * steps[0]["size_m"]
     # never exit code 0, strict or not
     assert _replay(logs[name], d, capsys, "--strict")[0] == 3
+
+
+def test_camera_lockout_is_reopened_and_degraded(flights, capsys):
+    """Camera 1's first Earth vector 4 deg off: its misalignment is re-opened after 20 of its
+    vectors in a row were gated (nav/recovery.py), its later vectors are accepted, and the verdict
+    is DEGRADED naming the camera (exit 0; 4 with --strict). The GPS rules that follow
+    re-initialisations do not read it as one."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["lockout"], d, capsys)
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED"
+    (r,) = s["recoveries"]
+    assert r["reason"] == "camera_gated" and r["details"]["camera_name"] == "camera_1"
+    assert r["details"]["gated_vectors"] == 20
+    assert s["verdict"]["reasons"][0].startswith(f"camera_1: misalignment re-opened at T+{r['tplus_s']:.1f} s after 20")
+    assert f"recoveries: T+{r['tplus_s']:.1f} s camera_gated (camera_1)" in out
+    used, _ = _logged(d / "lockout.solution.mcap", "camera_1/earth")
+    assert used[:1].all() and not used[1:21].any() and used[21:].all()
+    assert not any("recovery" in x or "re-initialised" in x for x in s["verdict"]["reasons"])
+    assert _replay(logs["lockout"], d, capsys, "--strict")[0] == 4
 
 
 def test_most_gps_rejected_fails(flights, capsys):

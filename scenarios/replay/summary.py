@@ -301,7 +301,9 @@ def sensor_table(s: dict) -> list:
     if g is not None:
         L.append(f"IMU gaps over {g['threshold_s']:g} s: {g['count']}" + (f", longest {g['longest_s']:.2f} s" if g["count"] else ""))
     rec = s.get("recoveries", [])
-    L.append("recoveries: " + (", ".join(f"T+{r['tplus_s']:.1f} s {r['reason']}" for r in rec) if rec else "none"))
+    L.append("recoveries: " + (", ".join(f"T+{r['tplus_s']:.1f} s {r['reason']}"
+                                         + (f" ({r['details']['camera_name']})" if "camera_name" in r["details"] else "")
+                                         for r in rec) if rec else "none"))
     if s.get("gps_steps"):
         L.append(f"GPS track steps its velocity does not explain: {len(s['gps_steps'])} (" + ", ".join(
             f"{p['size_m']:.0f} m at T+{p['tplus_s']:.1f} s" for p in s["gps_steps"][:3]) + ")")

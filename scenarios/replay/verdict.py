@@ -29,10 +29,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nav.schmidt import chi2_gate
+from scenarios.replay.solution_log import source_name
 
 NS = 1_000_000_000
 DOF = {"gps_pos": 3, "gps_vel": 3, "hor": 2, "sun": 2, "moon": 2, "edge": 1}
 GPS_KINDS = ("gps_pos", "gps_vel")
+CAMERA_RECOVERY = "camera_gated"   #: the recovery reason of a re-opened camera misalignment (nav.recovery)
 #: rejection reasons of rows that hold no measurement (NaN: a receiver's "no fix" row, a frame
 #: without a vector): counted as missing, not as offered and rejected; their time is a gap
 MISSING = ("non-finite", "non-finite vector", "non-finite covariance")
@@ -119,7 +121,6 @@ def gross_limit(n: int, dof: int) -> float:
 def _records(innovations, cam_numbers):
     """Per source name: kind, stamps, accepted flags, NIS, reasons (arrays; one pass) and the
     count of non-finite measurements (NaN rows: missing, not offered; :data:`MISSING`)."""
-    from scenarios.replay.solution_log import source_name
     rec: dict = {}
     for i in innovations:
         src = source_name(i.kind, i.camera, cam_numbers)
@@ -271,7 +272,10 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
     recs_out = [{"t_ns": int(t), "tplus_s": float(tp(t)), "reason": r,
                  "details": {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in det.items()}}
                 for t, r, det in res.recoveries]
-    t_rec = max((int(t) for t, _, _ in res.recoveries), default=None)
+    for r in recs_out:
+        if r["reason"] == CAMERA_RECOVERY:
+            r["details"]["camera_name"] = source_name("hor", r["details"]["camera"], cam_numbers).split("/")[0]
+    t_rec = max((r["t_ns"] for r in recs_out if r["reason"] != CAMERA_RECOVERY), default=None)
     after = _share_rejected(recs, GPS_KINDS, t_rec + 1) if t_rec is not None else (0, 0)
     pos_sig = np.sqrt(res.P_diag[:, res.layout["dx"]]).max(axis=1)
     gps_n, gps_r = _share_rejected(recs, GPS_KINDS, a)
@@ -329,7 +333,8 @@ def _failed(s: dict) -> list:
                        "solution and the fixes disagree")
     ar = s["after_last_recovery"]
     if ar["offered"] >= TAIL_MIN_FIXES and ar["rejected"] > AFTER_RECOVERY_FAIL * ar["offered"]:
-        out.append(f"GPS rejections continue after the last recovery (T+{s['recoveries'][-1]['tplus_s']:.1f} s): "
+        last = [r for r in s["recoveries"] if r["reason"] != CAMERA_RECOVERY][-1]
+        out.append(f"GPS rejections continue after the last recovery (T+{last['tplus_s']:.1f} s): "
                    f"{ar['rejected']} of {ar['offered']} blocks")
     div = [r for r in s["recoveries"] if r["reason"] == "divergence"]
     if len(div) >= DIVERGENCES_FAIL:
@@ -366,7 +371,7 @@ def _degraded(s: dict) -> tuple:
     other = [w for w in s["warnings"] if "truncated" not in w and "damaged" not in w]
     if other:
         out.append(f"{len(other)} input warning(s): " + other[0] + (" ..." if len(other) > 1 else ""))
-    rec = s["recoveries"]
+    rec = [r for r in s["recoveries"] if r["reason"] != CAMERA_RECOVERY]
     for r in rec[:3]:
         d = r["details"]
         what = f"{d['gap_s']:.1f} s IMU gap" if "gap_s" in d else f"{d.get('gated_fixes', '?')} gated GPS fixes"
@@ -374,6 +379,15 @@ def _degraded(s: dict) -> tuple:
                    f"{d.get('position_jump_m', float('nan')):.1f} m)")
     if len(rec) > 3:
         out.append(f"{len(rec) - 3} more re-initialisations, the last at T+{rec[-1]['tplus_s']:.1f} s")
+    cams = {}
+    for r in s["recoveries"]:
+        if r["reason"] == CAMERA_RECOVERY:
+            cams.setdefault(r["details"]["camera_name"], []).append(r)
+    for name, rs in cams.items():
+        out.append(f"{name}: misalignment re-opened at T+{rs[0]['tplus_s']:.1f} s after "
+                   f"{rs[0]['details']['gated_vectors']} of its vectors in a row were gated"
+                   + (f" ({len(rs)} times, the last at T+{rs[-1]['tplus_s']:.1f} s)" if len(rs) > 1 else "")
+                   + ": vectors accepted before had moved its misalignment away from the later ones")
     if s.get("imu_ends_before_gps_s", 0.0) > IMU_SHORT_DEGRADED_S:
         out.append(f"the IMU record ends {s['imu_ends_before_gps_s']:.1f} s before the GPS record: the solution stops "
                    "with the IMU")

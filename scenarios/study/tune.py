@@ -402,10 +402,10 @@ class Objective:
 
     def tuning(self, theta, *, gate: bool = False) -> Tuning:
         """The filter of the likelihood at ``theta``: the considered groups estimated (the optimal
-        filter of the model, whose innovations are white), no divergence recovery (it follows the
-        gate), and the gate off (the set is fixed) unless ``gate``, which :meth:`fix_set` uses to
-        choose the set this same filter accepts."""
-        t = replace(estimated_everywhere(self.written(theta)), recovery_gated_fixes=0)
+        filter of the model, whose innovations are white), no divergence recovery and no re-opened
+        misalignment (both follow the gate), and the gate off (the set is fixed) unless ``gate``,
+        which :meth:`fix_set` uses to choose the set this same filter accepts."""
+        t = replace(estimated_everywhere(self.written(theta)), recovery_gated_fixes=0, recovery_gated_vectors=0)
         return t if gate else replace(t, gate_probability=1.0)
 
     def run(self, tuning: Tuning, gps=None, vectors=None):
