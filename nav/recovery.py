@@ -38,8 +38,9 @@ and the misalignment stays wrong (:class:`MisalignmentReopening`):
   axis. The growth is process noise added between the epoch's update and the next propagation, so
   the smoother treats it as such (its gain across the re-opening is small). Only an estimated
   misalignment is re-opened; a camera whose vectors stay gated after the re-opening is re-opened
-  again after as many more, so a misalignment wrong by several prior sigmas is reached in steps.
-  The attitude is left alone: the other cameras and GPS hold it.
+  again after as many more, so an estimate several prior sigmas from its vectors is reached in
+  steps. The attitude is left alone: the other cameras and GPS hold it. ``[recovery] enabled =
+  false`` turns this off with the rest.
 
 Each recovery is recorded as ``(t_ns, reason, details)`` (reason ``"imu_gap"``, ``"divergence"``
 or ``"camera_gated"``) in ``NavResult.recoveries`` and logged.

@@ -234,12 +234,15 @@ def _lockout_run(fi, vectors, gated_vectors: int) -> dict:
     hor0 = [i for i in res.innovations if i.camera == 0 and i.kind == "hor"]
     sm = rts_smooth(res)
     q_true = fi.truth.q_eb[fi.truth_idx[fi.start_idx:]]
-    aided = res.t_ns > t_re
-    rms = [float(np.degrees(np.sqrt(np.mean(np.sum(attitude_errors(q, q_true[i][aided[i]]) ** 2, 1)))))
-           for q, i in ((res.q_eb[aided], np.arange(res.t_ns.size)), (sm.q_eb[aided[sm.idx]], sm.idx))]
+
+    def rms_after(q_eb, idx):
+        """Attitude RMS error [deg] of the solution at IMU samples ``idx`` after the re-opening."""
+        keep = res.t_ns[idx] > t_re
+        return float(np.degrees(np.sqrt(np.mean(np.sum(attitude_errors(q_eb[keep], q_true[idx][keep]) ** 2, 1)))))
     return {"res": res, "hor0": hor0, "after": float(np.mean([i.accepted for i in hor0 if i.t_ns > t_re])),
             "err": np.degrees(res.misalignment[-1, 0] - fi.psi_c_true[0]),
-            "sig3": 3 * np.degrees(res.misalignment_sigma[-1, 0]), "rms_fwd": rms[0], "rms_smoothed": rms[1]}
+            "sig3": 3 * np.degrees(res.misalignment_sigma[-1, 0]),
+            "rms_fwd": rms_after(res.q_eb, np.arange(res.t_ns.size)), "rms_smoothed": rms_after(sm.q_eb, sm.idx)}
 
 
 def test_camera_lockout_reopens_misalignment(atek_vectors):
