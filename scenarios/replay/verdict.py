@@ -387,7 +387,8 @@ def _degraded(s: dict) -> tuple:
         out.append(f"{name}: misalignment re-opened at T+{rs[0]['tplus_s']:.1f} s after "
                    f"{rs[0]['details']['gated_vectors']} of its vectors in a row were gated"
                    + (f" ({len(rs)} times, the last at T+{rs[-1]['tplus_s']:.1f} s)" if len(rs) > 1 else "")
-                   + ": vectors accepted before had moved its misalignment away from the later ones")
+                   + ": its vectors and its misalignment estimate disagreed (an early gross vector, or a mounting the "
+                   "camera file does not describe)")
     if s.get("imu_ends_before_gps_s", 0.0) > IMU_SHORT_DEGRADED_S:
         out.append(f"the IMU record ends {s['imu_ends_before_gps_s']:.1f} s before the GPS record: the solution stops "
                    "with the IMU")
