@@ -163,3 +163,28 @@ def test_recording_moved_into_place_over_an_old_one(tmp_path):
     move_into_place(tmp_path / ".s.rrd.tmp", tmp_path / "s.rrd")
     assert (tmp_path / "s.rrd").read_bytes() == b"first"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd", "s.rrd"]
+
+
+def test_recoveries_are_events_at_their_times(tmp_path):
+    """The filter's recoveries as Rerun text-log warnings on /events, at their mission times, in
+    the verdict's words (`verdict.recovery_text`): a re-opened camera by its log name, a GPS
+    re-initialisation with its cause and jump. Read back with `rerun rrd print -vvv`."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import rerun as rr
+    from scenarios.replay import rerun_view as RV
+    t0 = 10 ** 18
+    rec = rr.RecordingStream("t", recording_id="t")
+    rec.save(str(tmp_path / "e.rrd"))
+    inp = SimpleNamespace(mission_time=lambda t: (np.asarray(t, np.int64) - t0) / 1e9)
+    res = SimpleNamespace(recoveries=[
+        (t0 + 84 * 10 ** 9, "camera_gated", {"camera": 1, "gated_vectors": 20, "sigma_added_deg": 1.0}),
+        (t0 + 121 * 10 ** 9, "imu_gap", {"gap_s": 20.05, "position_jump_m": 3.21, "velocity_jump_m_s": 0.1})])
+    RV._events(rec, rr, inp, res, [1, 3])
+    rec.flush()
+    out = subprocess.run([RERUN, "rrd", "print", "-vvv", str(tmp_path / "e.rrd")], capture_output=True, text=True).stdout
+    rows = [ln for ln in out.splitlines() if "[WARN]" in ln]
+    assert len(rows) == 2
+    assert "PT84S" in rows[0] and "[camera_3: misalignment re-opened after 20 of its vectors in a row were gated]" in rows[0]
+    assert "PT121S" in rows[1] and "re-initialised from GPS (imu_gap: 20.1 s IMU gap; position moved 3.2 m)" in rows[1]

@@ -38,6 +38,7 @@ from nav.ephemeris import sun_position_e
 from nav.rotation import matrix_to_rotvec, quat_to_matrix
 from scenarios.atomic import move_into_place
 from scenarios.replay.solution_log import source_name
+from scenarios.replay.verdict import recovery_rows, recovery_text
 from scenarios.replay.summary import attitude_error
 
 NS = 1_000_000_000
@@ -77,6 +78,7 @@ def blueprint(cam_numbers, x_e=None):
           ("triad_minus_unaided", "TRIAD − unaided [deg] (fig. 44 a)"),
           ("gps_innovation", "GPS innovations ±3σ [m, m/s]"),
           ("error", "error vs truth [deg, m, m/s]"))]
+    ts.append(rrb.TextLogView(origin="events", name="recoveries"))
     eye = None
     if x_e is not None and len(x_e):
         x = np.asarray(x_e, float)
@@ -164,7 +166,8 @@ def solution(r: Recording, inp, res, vectors, cam_numbers, frames) -> None:
     import rerun as rr
     for name, fn, args in (("static", _static, (r.rec, rr, inp, res)),
                            ("scene", _scene, (r.rec, rr, inp, res, vectors, cam_numbers, frames)),
-                           ("series", _timeseries, (r.rec, rr, inp, res, vectors, cam_numbers))):
+                           ("series", _timeseries, (r.rec, rr, inp, res, vectors, cam_numbers)),
+                           ("series", _events, (r.rec, rr, inp, res, cam_numbers))):
         t = time.perf_counter()
         fn(*args)
         r.timings[name] = r.timings.get(name, 0.0) + time.perf_counter() - t
@@ -219,6 +222,15 @@ def _static(rec, rr, inp, res):
             rec.log(f"camera_{k}/image", rr.Pinhole(image_from_camera=np.asarray(c.camera.K if hasattr(c.camera, "K") else
                                                                                    _K(c.camera)), width=c.camera.width,
                                                    height=c.camera.height), static=True)
+
+
+def _events(rec, rr, inp, res, cam_numbers):
+    """The filter's recoveries (`nav.recovery`: re-initialisations from GPS, re-opened camera
+    misalignments) as warnings on ``events`` at their times, in the verdict's words."""
+    rows = recovery_rows(res.recoveries, cam_numbers)
+    if rows:
+        rec.send_columns("events", indexes=_times(rr, inp, [r["t_ns"] for r in rows]),
+                         columns=rr.TextLog.columns(text=[recovery_text(r) for r in rows], level=["WARN"] * len(rows)))
 
 
 def _K(cam):

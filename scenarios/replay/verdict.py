@@ -269,12 +269,7 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
                     ("imu_time_not_increasing", "not increasing in time")):
         if res.rejected.get(k):
             warnings.append(f"IMU: {res.rejected[k]} samples {what}, replaced by the last good sample or dropped")
-    recs_out = [{"t_ns": int(t), "tplus_s": float(tp(t)), "reason": r,
-                 "details": {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in det.items()}}
-                for t, r, det in res.recoveries]
-    for r in recs_out:
-        if r["reason"] == CAMERA_RECOVERY:
-            r["details"]["camera_name"] = source_name("hor", r["details"]["camera"], cam_numbers).split("/")[0]
+    recs_out = recovery_rows(res.recoveries, cam_numbers, tp)
     t_rec = max((r["t_ns"] for r in recs_out if r["reason"] != CAMERA_RECOVERY), default=None)
     after = _share_rejected(recs, GPS_KINDS, t_rec + 1) if t_rec is not None else (0, 0)
     pos_sig = np.sqrt(res.P_diag[:, res.layout["dx"]]).max(axis=1)
@@ -305,6 +300,28 @@ def _imu_short(inputs, b: int) -> float:
 
 def _pct(x: float) -> str:
     return f"{100 * x:.0f} %"
+
+
+def recovery_rows(recoveries, cam_numbers, tp=lambda t_ns: float("nan")) -> list:
+    """``NavResult.recoveries`` as JSON-ready rows ``{t_ns, tplus_s, reason, details}`` (``tp``:
+    stamp to T+ seconds); a re-opened camera's details gain its ``camera_name``."""
+    rows = [{"t_ns": int(t), "tplus_s": float(tp(t)), "reason": r,
+             "details": {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in det.items()}}
+            for t, r, det in recoveries]
+    for r in rows:
+        if r["reason"] == CAMERA_RECOVERY:
+            r["details"]["camera_name"] = source_name("hor", r["details"]["camera"], cam_numbers).split("/")[0]
+    return rows
+
+
+def recovery_text(r: dict) -> str:
+    """One recovery row (:func:`recovery_rows`) in words, without its time."""
+    d = r["details"]
+    if r["reason"] == CAMERA_RECOVERY:
+        return f"{d['camera_name']}: misalignment re-opened after {d['gated_vectors']} of its vectors in a row were gated"
+    what = f"{d['gap_s']:.1f} s IMU gap" if "gap_s" in d else f"{d.get('gated_fixes', '?')} gated GPS fixes"
+    return (f"re-initialised from GPS ({r['reason']}: {what}; position moved "
+            f"{d.get('position_jump_m', float('nan')):.1f} m)")
 
 
 def _failed(s: dict) -> list:
@@ -373,19 +390,15 @@ def _degraded(s: dict) -> tuple:
         out.append(f"{len(other)} input warning(s): " + other[0] + (" ..." if len(other) > 1 else ""))
     rec = [r for r in s["recoveries"] if r["reason"] != CAMERA_RECOVERY]
     for r in rec[:3]:
-        d = r["details"]
-        what = f"{d['gap_s']:.1f} s IMU gap" if "gap_s" in d else f"{d.get('gated_fixes', '?')} gated GPS fixes"
-        out.append(f"re-initialised from GPS at T+{r['tplus_s']:.1f} s ({r['reason']}: {what}; position moved "
-                   f"{d.get('position_jump_m', float('nan')):.1f} m)")
+        out.append(f"{recovery_text(r)} at T+{r['tplus_s']:.1f} s")
     if len(rec) > 3:
         out.append(f"{len(rec) - 3} more re-initialisations, the last at T+{rec[-1]['tplus_s']:.1f} s")
     cams = {}
     for r in s["recoveries"]:
         if r["reason"] == CAMERA_RECOVERY:
             cams.setdefault(r["details"]["camera_name"], []).append(r)
-    for name, rs in cams.items():
-        out.append(f"{name}: misalignment re-opened at T+{rs[0]['tplus_s']:.1f} s after "
-                   f"{rs[0]['details']['gated_vectors']} of its vectors in a row were gated"
+    for rs in cams.values():
+        out.append(f"{recovery_text(rs[0])} at T+{rs[0]['tplus_s']:.1f} s"
                    + (f" ({len(rs)} times, the last at T+{rs[-1]['tplus_s']:.1f} s)" if len(rs) > 1 else "")
                    + ": its vectors and its misalignment estimate disagreed (an early gross vector, or a mounting the "
                    "camera file does not describe)")
