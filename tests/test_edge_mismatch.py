@@ -275,3 +275,15 @@ def test_short_arc_mirrored_by_the_edge_height_fit_is_refused(setup):
     r = next(q for q in recs if q.camera_index == 0 and abs((q.t_ns - lo) * 1e-9 - 430.0) < 1e-6)
     (o,) = em.run_case(em.Case(60e3), [(430.0, 0, r)], cam, mask, cfg, cache)
     assert (not o.found and "moved the nadir" in o.reason) or o.err_deg <= o.sigma3_deg, o
+
+
+def test_cases_are_in_study_order_with_or_without_the_bar(capsys):
+    """`edge_mismatch.cases`: profile-major, heights in the order given, the same with the
+    progress bar (which goes to stderr, naming the last case)."""
+    from scenarios.study.edge_mismatch import Case, cases
+    want = [Case(0.0, "a"), Case(10e3, "a"), Case(0.0, "b"), Case(10e3, "b")]
+    assert list(cases((0.0, 10e3), ("a", "b"))) == want
+    assert capsys.readouterr().err == ""
+    assert list(cases((0.0, 10e3), ("a", "b"), progress=True)) == want
+    err = capsys.readouterr().err
+    assert "b_10km" in err and "4/4" in err

@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 
 from scenarios.atomic import atomic_write_text
-from scenarios.study.edge_mismatch import HEIGHTS_M, PROFILES, Case
+from scenarios.study.edge_mismatch import HEIGHTS_M, PROFILES, cases, quiet_filter_log
 
 __all__ = ["TUNING", "EDGE_STATE", "tuning_file", "replay_log", "run_study", "main"]
 
@@ -57,10 +57,11 @@ def replay_log(path: Path, out: Path, tuning: Path, workers: int = 0):
 
 
 def run_study(heights=HEIGHTS_M, profiles=tuple(PROFILES), workdir: Path | None = None,
-              on_row=lambda rows: None, edge: str = "limb") -> list[dict]:
+              on_row=lambda rows: None, edge: str = "limb", progress: bool = False) -> list[dict]:
     """Per case and camera the figures of `orbit_mismatch.flight_figures` (one simulated flight,
     rendered per case), with ``camera`` the log's camera number; ``on_row(rows)`` after each row
-    (the rows so far); ``edge``: the edge the state describes (:func:`tuning_file`)."""
+    (the rows so far); ``edge``: the edge the state describes (:func:`tuning_file`);
+    ``progress``: a progress bar over the cases."""
     from scenarios.sim.scenario import load_scenario
     from scenarios.sim.simulate import simulate_flight
     from scenarios.study.orbit_mismatch import flight_figures, simulate_log
@@ -70,15 +71,13 @@ def run_study(heights=HEIGHTS_M, profiles=tuple(PROFILES), workdir: Path | None 
     workdir = Path(tempfile.mkdtemp(prefix="horizon-nav-atek-edge-")) if workdir is None else workdir
     tuning = tuning_file(workdir, edge)
     rows = []
-    for p in profiles:
-        for h in heights:
-            case = Case(float(h), p)
-            log = simulate_log(workdir / f"{case.name}.mcap", case, sc=sc, flight=flight)
-            rr = replay_log(log, workdir / f"{case.name}.solution.mcap", tuning)
-            for k, number in enumerate(rr.cam_numbers):
-                rows.append(dict(flight_figures(rr, case, k), camera=int(number), edge=edge))
-                on_row(rows)
-            log.unlink()
+    for case in cases(heights, profiles, progress):
+        log = simulate_log(workdir / f"{case.name}.mcap", case, sc=sc, flight=flight)
+        rr = replay_log(log, workdir / f"{case.name}.solution.mcap", tuning)
+        for k, number in enumerate(rr.cam_numbers):
+            rows.append(dict(flight_figures(rr, case, k), camera=int(number), edge=edge))
+            on_row(rows)
+        log.unlink()
     return rows
 
 
@@ -106,14 +105,16 @@ def main(argv=None) -> int:
     ap.add_argument("--workdir", type=Path, help="keep the solution logs here (default: a temporary directory)")
     ap.add_argument("--out", type=Path, help="write the per-case figures as JSON here")
     a = ap.parse_args(argv)
-    print(_HEAD, flush=True)
+    from tqdm import tqdm
+    quiet_filter_log()
+    tqdm.write(_HEAD)
 
     def on_row(rows):
-        print(_line(rows[-1]), flush=True)
+        tqdm.write(_line(rows[-1]))
         if a.out:   # after every row: an interrupted study keeps the cases it finished
             atomic_write_text(a.out, json.dumps(rows, indent=1))
 
-    run_study([h * 1e3 for h in a.heights], a.profiles, a.workdir, on_row, a.edge)
+    run_study([h * 1e3 for h in a.heights], a.profiles, a.workdir, on_row, a.edge, progress=True)
     return 0
 
 

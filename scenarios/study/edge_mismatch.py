@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +59,28 @@ class Case:
     @property
     def name(self) -> str:
         return f"{self.profile}_{self.height_m / 1e3:.0f}km"
+
+
+def cases(heights=HEIGHTS_M, profiles=tuple(PROFILES), progress: bool = False):
+    """The studies' (profile, height) cases in their order; with ``progress`` a progress bar on
+    stderr naming the case under way."""
+    todo = [Case(float(h), p) for p in profiles for h in heights]
+    if not progress:
+        yield from todo
+        return
+    from tqdm import tqdm
+    bar = tqdm(todo, unit="case", dynamic_ncols=True)
+    for c in bar:
+        bar.set_description(c.name)
+        yield c
+
+
+def quiet_filter_log() -> None:
+    """Keep the filter's per-measurement warnings (gated vectors) off a study's terminal: the
+    figures count them, and the progress bar stays readable. Recoveries are warnings too and go
+    with them; the figures do not show those."""
+    import logging
+    logging.getLogger("nav.navigator").setLevel(logging.ERROR)
 
 
 @dataclass(frozen=True)
@@ -200,10 +223,11 @@ def default_cache() -> Path:
 
 
 def run_study(n_frames: int = 48, heights=HEIGHTS_M, profiles=tuple(PROFILES), config=None,
-              cache: Path | None = None, span_s: tuple = (64.0, 430.0)) -> list[dict]:
+              cache: Path | None = None, span_s: tuple = (64.0, 430.0), progress: bool = False) -> list[dict]:
     """`summarise` of every (profile, height) case on ``n_frames`` ATEK frames spread over
     ``span_s`` = (t0, t1) [s after liftoff] (`atek_frames`) with the front end's defaults (or
-    ``config``). Rendered frames are cached under ``cache`` (default: `default_cache`)."""
+    ``config``). Rendered frames are cached under ``cache`` (default: `default_cache`);
+    ``progress``: a progress bar, and a note when the cache is empty."""
     from scenarios.sim import render
     from vision import mask as vmask
     from vision.config import default_config
@@ -214,12 +238,11 @@ def run_study(n_frames: int = 48, heights=HEIGHTS_M, profiles=tuple(PROFILES), c
     mask = vmask.from_binary(render.payload_mask(cam, render.DEFAULT_PAYLOAD_MASK))
     cache = default_cache() if cache is None else cache
     cache.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for p in profiles:
-        for h in heights:
-            case = Case(float(h), p)
-            rows.append(summarise(case, run_case(case, frames, cam, mask, config, cache)))
-    return rows
+    if progress and not any(cache.iterdir()):
+        print(f"first run: rendering the frames into {cache} (minutes; later runs read them from there)",
+              file=sys.stderr, flush=True)
+    return [summarise(case, run_case(case, frames, cam, mask, config, cache))
+            for case in cases(heights, profiles, progress)]
 
 
 def main(argv=None) -> int:
@@ -235,7 +258,8 @@ def main(argv=None) -> int:
         ap.error(f"--frames {a.frames}: expected at least 2")
     if not a.span[0] < a.span[1]:
         ap.error(f"--span {a.span[0]:g} {a.span[1]:g}: expected T0 < T1")
-    rows = run_study(a.frames, span_s=tuple(a.span))
+    quiet_filter_log()
+    rows = run_study(a.frames, span_s=tuple(a.span), progress=True)
     print(f"{'case':<18}{'found':>7}{'wrong':>6}{'RMS deg':>9}{'max deg':>9}{'3sig in':>9}{'h est km':>10}"
           f"{'h true km':>10}{'dh rms km':>10}{'arc':>6}")
     for r in rows:

@@ -55,7 +55,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from scenarios.atomic import atomic_write_text
-from scenarios.study.edge_mismatch import HEIGHTS_M, PROFILES, Case
+from scenarios.study.edge_mismatch import HEIGHTS_M, PROFILES, Case, cases, quiet_filter_log
 
 __all__ = ["SCENARIO", "TUNING", "VISION", "TARGETS", "orbit_scenario", "simulate_log", "replay_log",
            "flight_figures", "run_study", "main"]
@@ -232,19 +232,19 @@ def _prior_sigma() -> float:
     return float(tuning_from_toml(TUNING.read_text(encoding="utf-8")).edge_height.sigma)
 
 
-def run_study(heights=HEIGHTS_M, profiles=tuple(PROFILES), rate_hz: float = 0.5, workdir: Path | None = None) -> list[dict]:
-    """`flight_figures` of every (profile, height) case: one simulated flight, rendered per case."""
+def run_study(heights=HEIGHTS_M, profiles=tuple(PROFILES), rate_hz: float = 0.5, workdir: Path | None = None,
+              progress: bool = False) -> list[dict]:
+    """`flight_figures` of every (profile, height) case: one simulated flight, rendered per case;
+    ``progress``: a progress bar over the cases."""
     from scenarios.sim.simulate import simulate_flight
 
     sc = orbit_scenario(rate_hz=rate_hz)
     flight = simulate_flight(sc, 0)
     workdir = Path(tempfile.mkdtemp(prefix="horizon-nav-orbit-")) if workdir is None else workdir
     rows = []
-    for p in profiles:
-        for h in heights:
-            case = Case(float(h), p)
-            log = simulate_log(workdir / f"{case.name}.mcap", case, sc=sc, flight=flight)
-            rows.append(flight_figures(replay_log(log, workdir / f"{case.name}.solution.mcap"), case))
+    for case in cases(heights, profiles, progress):
+        log = simulate_log(workdir / f"{case.name}.mcap", case, sc=sc, flight=flight)
+        rows.append(flight_figures(replay_log(log, workdir / f"{case.name}.solution.mcap"), case))
     return rows
 
 
@@ -254,7 +254,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rate", type=float, default=0.5, help="camera frame rate [Hz] (default 0.5, the scenario's: 121 frames)")
     ap.add_argument("--out", type=Path, help="write the per-case figures as JSON here")
     a = ap.parse_args(argv)
-    rows = run_study(rate_hz=a.rate)
+    quiet_filter_log()
+    rows = run_study(rate_hz=a.rate, progress=True)
     print(f"{'case':<18}{'h true':>8}{'h smooth':>10}{'1sig':>6}{'RMS raw':>9}{'RMS':>8}{'3s prior':>9}{'3s':>6}"
           f"{'NEES in':>8}{'w/ Moon':>8}{'att sm':>8}{'moon':>8}")
     for r in rows:
