@@ -34,7 +34,7 @@ the E/C column is the base tuning's choice.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -165,10 +165,12 @@ def state_names(layout) -> tuple:
 def observability(inputs: TuneInputs, base: Tuning, *, low: float = LOW, high: float = HIGH) -> ObservabilityReport:
     """The observability report of the flight ``inputs`` under the tuning ``base`` (module
     docstring): one forward run with every group estimated, the RTS smoother, the prior
-    propagation."""
+    propagation. The run re-opens no camera misalignment (`nav.recovery`): a re-opening adds
+    variance that is the recovery's, not the flight's information."""
     if not 0.0 <= low <= high <= 1.0:
         raise ValueError(f"observability thresholds: expected 0 <= low <= high <= 1, got low={low}, high={high}")
-    res = run(inputs.imu, inputs.init, estimated_everywhere(base), gps=inputs.gps, vectors=inputs.vectors,
+    res = run(inputs.imu, inputs.init, replace(estimated_everywhere(base), recovery_gated_vectors=0),
+              gps=inputs.gps, vectors=inputs.vectors,
               R_bc=inputs.R_bc, lever_b=inputs.lever_b, store_for_smoother=True, unaided=False)
     sm = rts_smooth(res)
     P0 = prior_variances(res.store, res.P_full)
@@ -176,7 +178,8 @@ def observability(inputs: TuneInputs, base: Tuning, *, low: float = LOW, high: f
     names, groups = state_names(res.layout)
     base_layout = build_layout(base, len(inputs.R_bc))
     modes = ["E" if e else "C" for e in base_layout.estimated_mask]
-    notes = [f"{len(res.recoveries)} divergence recoveries in the report's run"] if res.recoveries else []
+    notes = ([f"{len(res.recoveries)} re-initialisations from GPS in the report's run ("
+              + ", ".join(sorted({r[1] for r in res.recoveries})) + ")"] if res.recoveries else [])
     return ObservabilityReport(t_s, int(sm.t_ns[0]), names, groups, modes, P0, np.asarray(res.P_diag, float),
                                np.asarray(sm.P, float), variance_reduction(t_s, sm.P, P0), low, high, notes)
 
