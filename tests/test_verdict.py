@@ -73,6 +73,12 @@ def flights(tmp_path_factory):
     j = int(np.flatnonzero((lock.camera == 1) & (lock.target == "earth"))[0])
     lock.e_c[j] = rotvec_to_matrix(np.radians(4.0) * tangent_basis(lock.e_c[j])[:, 0]) @ lock.e_c[j]
     logs["lockout"] = write_log(fl, d / "lockout.mcap", vectors=lock)
+    # camera 1's vectors all turned 8 deg about its z axis: a camera file whose mounting is off
+    # by 8 prior sigmas
+    mount = copy.deepcopy(vec)
+    m1 = mount.camera == 1
+    mount.e_c[m1] = mount.e_c[m1] @ rotvec_to_matrix(np.radians([0.0, 0.0, 8.0])).T
+    logs["mounted"] = write_log(fl, d / "mounted.mcap", vectors=mount)
     # IMU samples missing: 20 s from T+100 (a gap), or everything after T_BREAK (a cut table)
     t = fl.imu.t
     for name, drop in (("imu_gap", (t > 100.0) & (t < 120.0)), ("imu_cut", t > T_BREAK)):
@@ -221,6 +227,26 @@ def test_camera_lockout_is_reopened_and_degraded(flights, capsys):
     assert used[:1].all() and not used[1:21].any() and used[21:].all()
     assert not any("recovery" in x or "re-initialised" in x for x in s["verdict"]["reasons"])
     assert _replay(logs["lockout"], d, capsys, "--strict")[0] == 4
+
+
+def test_misalignment_beyond_its_prior_is_degraded(flights, capsys):
+    """Camera 1 mounted 8 deg off what its file says (its vectors turned about the camera's z
+    axis): every vector is accepted, and before this rule the verdict was OK although the forward
+    attitude error is several times the clean flight's. The misalignment estimate ends beyond 3
+    sigma of its 1 deg prior, and that makes the run DEGRADED naming the camera (exit 0, 4 with
+    --strict)."""
+    logs, fl, d = flights
+    rc, out, _, s = _replay(logs["mounted"], d, capsys)
+    clean = _replay(logs["clean"], d, capsys)[3]
+    assert rc == 0 and s["verdict"]["status"] == "DEGRADED"
+    (m,) = s["misalignment_beyond_prior"]
+    assert m["camera"] == "camera_1" and m["prior_sigma_deg"] == pytest.approx(1.0) and max(map(abs, m["psi_c_deg"])) > 3.0
+    assert s["verdict"]["reasons"] == [f"camera_1: misalignment estimated {m['psi_c_deg']} deg (body axes), beyond 3 "
+                                       "sigma of its 1 deg prior: the camera file's mounting may be off by more than "
+                                       "the filter's small-angle misalignment holds"]
+    assert s["truth"]["forward"]["att_rms_deg"] > 2 * clean["truth"]["forward"]["att_rms_deg"]
+    assert clean["misalignment_beyond_prior"] == []
+    assert _replay(logs["mounted"], d, capsys, "--strict")[0] == 4
 
 
 def test_most_gps_rejected_fails(flights, capsys):

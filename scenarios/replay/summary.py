@@ -74,7 +74,7 @@ def summarize(rr) -> dict:
     if verdict is not None:
         empty = {"sensors": {}, "imu_gaps": None, "recoveries": [], "gps_steps": [], "position_sigma_m": None,
                  "tail_from_tplus_s": None, "imu_ends_before_gps_s": 0.0, "warnings": list(getattr(inp, "notes", [])),
-                 "truncated": False}
+                 "truncated": False, "misalignment_beyond_prior": []}
         out.update({k: st.get(k, v) for k, v in empty.items()})
         out["verdict"] = verdict.to_dict()
     return out

@@ -64,6 +64,7 @@ STEP_JERK = 1000.0          #: jerk allowance [m/s^3] of the trapezoidal track p
 STEP_ACCEL = 200.0          #: acceleration allowance [m/s^2] of the linear prediction (position only)
 STEP_MAX_DT_S = 2.0         #: pairs of fixes further apart are not compared
 STEP_BEFORE_RECOVERY_S = 30.0   #: a step this long before a divergence recovery is what it followed
+MISALIGNMENT_PRIOR_SIGMAS = 3.0  #: an estimated camera misalignment beyond this many prior sigmas on an axis -> DEGRADED
 
 
 @dataclass
@@ -285,7 +286,23 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
                                  "max_tplus_s": float(tp(res.cov_t_ns[int(np.argmax(pos_sig))]))},
             "imu_ends_before_gps_s": _imu_short(inputs, b),
             "warnings": warnings,
-            "truncated": any("truncated" in w or "damaged" in w for w in warnings)}
+            "truncated": any("truncated" in w or "damaged" in w for w in warnings),
+            "misalignment_beyond_prior": _beyond_prior(res, tuning, cam_numbers)}
+
+
+def _beyond_prior(res, tuning, cam_numbers) -> list:
+    """The cameras whose final estimated misalignment lies beyond ``MISALIGNMENT_PRIOR_SIGMAS``
+    of its prior (``camera_misalignment.sigma``) on a body axis: ``{camera, psi_c_deg,
+    prior_sigma_deg}``. The filter's misalignment is a small-angle state about the camera file's
+    mounting, so an estimate that far out says the mounting or the estimate is wrong."""
+    g = tuning.camera_misalignment
+    if not (g.estimated and len(res.misalignment_t_ns)):
+        return []
+    lim = MISALIGNMENT_PRIOR_SIGMAS * g.sigma
+    return [{"camera": source_name("hor", c, cam_numbers).split("/")[0],
+             "psi_c_deg": np.degrees(res.misalignment[-1, c]).round(3).tolist(),
+             "prior_sigma_deg": float(np.degrees(g.sigma))}
+            for c in range(res.misalignment.shape[1]) if np.any(np.abs(res.misalignment[-1, c]) > lim)]
 
 
 def _imu_short(inputs, b: int) -> float:
@@ -402,6 +419,10 @@ def _degraded(s: dict) -> tuple:
                    + (f" ({len(rs)} times, the last at T+{rs[-1]['tplus_s']:.1f} s)" if len(rs) > 1 else "")
                    + ": its vectors and its misalignment estimate disagreed (an early gross vector, or a mounting the "
                    "camera file does not describe)")
+    for m in s.get("misalignment_beyond_prior", []):
+        out.append(f"{m['camera']}: misalignment estimated {m['psi_c_deg']} deg (body axes), beyond "
+                   f"{MISALIGNMENT_PRIOR_SIGMAS:g} sigma of its {m['prior_sigma_deg']:g} deg prior: the camera file's "
+                   "mounting may be off by more than the filter's small-angle misalignment holds")
     if s.get("imu_ends_before_gps_s", 0.0) > IMU_SHORT_DEGRADED_S:
         out.append(f"the IMU record ends {s['imu_ends_before_gps_s']:.1f} s before the GPS record: the solution stops "
                    "with the IMU")
