@@ -14,7 +14,9 @@ track, the IMU time stamps):
 * IMU gaps (steps longer than ``Tuning.max_imu_gap_s``), the recoveries, steps in the GPS track
   that its own velocity does not explain, the largest position sigma, and the input warnings
   (the log reader's, truncation included, IMU samples the filter replaced, and a tuning that
-  contradicts itself, `nav.tuning.consistency_warnings`).
+  contradicts itself, `nav.tuning.consistency_warnings`);
+* the cameras whose final misalignment estimate lies beyond ``MISALIGNMENT_PRIOR_SIGMAS`` of its
+  prior (a mounting the camera file does not describe).
 
 :func:`judge` turns them into a :class:`Verdict`. The design goal: no wrong trajectory leaves
 with OK or DEGRADED (exit code 0); a run is FAILED when the filter's statistics show that its
@@ -299,7 +301,7 @@ def _beyond_prior(res, tuning, cam_numbers) -> list:
     if not (g.estimated and len(res.misalignment_t_ns)):
         return []
     lim = MISALIGNMENT_PRIOR_SIGMAS * g.sigma
-    return [{"camera": source_name("hor", c, cam_numbers).split("/")[0],
+    return [{"camera": _camera_name(c, cam_numbers),
              "psi_c_deg": np.degrees(res.misalignment[-1, c]).round(3).tolist(),
              "prior_sigma_deg": float(np.degrees(g.sigma))}
             for c in range(res.misalignment.shape[1]) if np.any(np.abs(res.misalignment[-1, c]) > lim)]
@@ -327,8 +329,13 @@ def recovery_rows(recoveries, cam_numbers, tp=lambda t_ns: float("nan")) -> list
             for t, r, det in recoveries]
     for r in rows:
         if r["reason"] == CAMERA_RECOVERY:
-            r["details"]["camera_name"] = source_name("hor", r["details"]["camera"], cam_numbers).split("/")[0]
+            r["details"]["camera_name"] = _camera_name(r["details"]["camera"], cam_numbers)
     return rows
+
+
+def _camera_name(c: int, cam_numbers) -> str:
+    """``camera_<k>``, the log's name of the filter's camera index ``c``."""
+    return source_name("hor", c, cam_numbers).split("/")[0]
 
 
 def recovery_text(r: dict) -> str:
