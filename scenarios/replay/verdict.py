@@ -273,7 +273,7 @@ def statistics(res, inputs, gps, tuning, cam_numbers) -> dict:
         if res.rejected.get(k):
             warnings.append(f"IMU: {res.rejected[k]} samples {what}, replaced by the last good sample or dropped")
     recs_out = recovery_rows(res.recoveries, cam_numbers, tp)
-    t_rec = max((r["t_ns"] for r in recs_out if r["reason"] != CAMERA_RECOVERY), default=None)
+    t_rec = max((r["t_ns"] for r in _reinitialisations(recs_out)), default=None)
     after = _share_rejected(recs, GPS_KINDS, t_rec + 1) if t_rec is not None else (0, 0)
     pos_sig = np.sqrt(res.P_diag[:, res.layout["dx"]]).max(axis=1)
     gps_n, gps_r = _share_rejected(recs, GPS_KINDS, a)
@@ -333,6 +333,12 @@ def recovery_rows(recoveries, cam_numbers, tp=lambda t_ns: float("nan")) -> list
     return rows
 
 
+def _reinitialisations(rows: list) -> list:
+    """The rows of :func:`recovery_rows` that re-initialised the state from GPS (an IMU gap or a
+    divergence), not the re-opened camera misalignments."""
+    return [r for r in rows if r["reason"] != CAMERA_RECOVERY]
+
+
 def _camera_name(c: int, cam_numbers) -> str:
     """``camera_<k>``, the log's name of the filter's camera index ``c``."""
     return source_name("hor", c, cam_numbers).split("/")[0]
@@ -374,7 +380,7 @@ def _failed(s: dict) -> list:
                        "solution and the fixes disagree")
     ar = s["after_last_recovery"]
     if ar["offered"] >= TAIL_MIN_FIXES and ar["rejected"] > AFTER_RECOVERY_FAIL * ar["offered"]:
-        last = [r for r in s["recoveries"] if r["reason"] != CAMERA_RECOVERY][-1]
+        last = _reinitialisations(s["recoveries"])[-1]
         out.append(f"GPS rejections continue after the last recovery (T+{last['tplus_s']:.1f} s): "
                    f"{ar['rejected']} of {ar['offered']} blocks")
     div = [r for r in s["recoveries"] if r["reason"] == "divergence"]
@@ -412,7 +418,7 @@ def _degraded(s: dict) -> tuple:
     other = [w for w in s["warnings"] if "truncated" not in w and "damaged" not in w]
     if other:
         out.append(f"{len(other)} input warning(s): " + other[0] + (" ..." if len(other) > 1 else ""))
-    rec = [r for r in s["recoveries"] if r["reason"] != CAMERA_RECOVERY]
+    rec = _reinitialisations(s["recoveries"])
     for r in rec[:3]:
         out.append(f"{recovery_text(r)} at T+{r['tplus_s']:.1f} s")
     if len(rec) > 3:
