@@ -50,6 +50,9 @@ from nav.rotation import tangent_basis
 from nav.schmidt import GATED, NONFINITE, OK, REASONS, chi2_gate, update_kernel
 
 log = logging.getLogger("nav.navigator")   # the run's logger: rejections are part of its report
+#: the warning of one rejected measurement block (kind, stamp, reason, NIS): one per gated vector,
+#: which a study's terminal filters out by this format (`scenarios.study.edge_mismatch.quiet_filter_log`)
+REJECTED_MESSAGE = "%s measurement at %d ns rejected: %s (NIS %.3g)"
 
 NS = 1_000_000_000
 
@@ -156,7 +159,7 @@ class EpochStack:
                 self.accepted.append(bi)
             else:
                 rejected[f"{kind}_{bad}"] += 1
-                log.warning("%s measurement at %d ns rejected: %s (NIS %.3g)", kind, t_m, bad, nis)
+                log.warning(REJECTED_MESSAGE, kind, t_m, bad, nis)
         if status == OK:
             return dx
         if good and status != GATED:

@@ -287,3 +287,21 @@ def test_cases_are_in_study_order_with_or_without_the_bar(capsys):
     assert list(cases((0.0, 10e3), ("a", "b"), progress=True)) == want
     err = capsys.readouterr().err
     assert "b_10km" in err and "4/4" in err
+
+
+def test_quiet_filter_log_drops_only_the_rejections(caplog):
+    """The studies' terminal filter (`edge_mismatch.quiet_filter_log`): a rejected measurement's
+    warning is dropped, a recovery's still shows."""
+    import logging
+
+    from nav.updates import REJECTED_MESSAGE
+    from scenarios.study.edge_mismatch import _not_a_rejection, quiet_filter_log
+    log = logging.getLogger("nav.navigator")
+    quiet_filter_log()
+    try:
+        with caplog.at_level(logging.WARNING, logger="nav.navigator"):
+            log.warning(REJECTED_MESSAGE, "hor", 1, "chi-square gate", 30.0)
+            log.warning("recovery (camera_gated) at %d ns: camera index %d's misalignment re-opened", 1, 0)
+    finally:
+        log.removeFilter(_not_a_rejection)
+    assert [r.getMessage() for r in caplog.records] == ["recovery (camera_gated) at 1 ns: camera index 0's misalignment re-opened"]
