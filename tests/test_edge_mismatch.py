@@ -107,7 +107,8 @@ def test_narrow_pinhole_low_edge_lands_within_half_a_degree(shift_m):
     as `horizon-nav vision` does (height and latitude only: the substitute sphere, the threshold
     edge, the defaults' height prior) land within 0.5 deg of the geocentric nadir and inside their
     own 3 sigma. The arc carries no height information at this field of view, so the prior decides:
-    at ~0.022 deg per km its mean (15 km) leaves 0.3-0.45 deg; a 45 km mean left 0.85-1.1 deg."""
+    at ~0.022 deg per km its mean (5 km) leaves 0.08-0.24 deg on these views; a 15 km mean left
+    0.3-0.45 deg, a 45 km mean 0.85-1.1 deg."""
     from nav import earth
     from vision.frontend import FramePrior, process_frame
 
@@ -118,6 +119,22 @@ def test_narrow_pinhole_low_edge_lands_within_half_a_degree(shift_m):
         assert rec is not None
         err = _err_deg(rec, e_true)
         assert err <= 0.5 and err <= 3.0 * rec.sigma_deg, (i, err, rec.sigma_deg, rec.edge_height_m)
+
+
+def test_narrow_pinhole_high_edge_is_inside_the_default_prior():
+    """The other end of the default prior (5 +- 22 km): the renderer's limb lifted by 15 km (edge
+    pixels at 49-60 km, 2.5 prior sigmas above its mean), the views whose errors come nearest
+    their bound. Each is 1.3-1.4 deg off (the prior's mean decides, ~0.022 deg per km) and inside
+    its own 3 sigma, at 0.92-0.93 of it; with a 20 km sigma they were at 1.00-1.01 of it."""
+    from nav import earth
+    from vision.frontend import FramePrior, process_frame
+
+    cam, cfg, views = _pinhole_views(15e3, (2, 8))
+    for img, e_true, x, _ in views:
+        lat, _, h = earth.ecef_to_geodetic(x)
+        rec = process_frame(img, cam, cfg, height_m=float(h), prior=FramePrior(lat=float(lat))).record("earth")
+        err = _err_deg(rec, e_true)
+        assert 1.0 < err <= 3.0 * rec.sigma_deg, (err, rec.sigma_deg, rec.edge_height_m)
 
 
 def test_narrow_pinhole_limb_edge_is_cross_checked_by_the_threshold_edge():

@@ -618,8 +618,8 @@ class VisionConfig:
     """Front-end configuration: one `TargetConfig` per target, the Earth-radius fallback.
 
     The defaults are those of the ATEK-like cameras: Earth with the threshold edge's height prior
-    15 +- 20 km (real orbital photographs 0-10 km, the renderer's 45 km; candidates scored at
-    45 km) and the fraction-of-peak limb edge; the Sun saturated (threshold
+    10 +- 22 km (real orbital photographs' 0-10 km; the renderer's 45 and 60 km inside 2.3
+    sigma; candidates scored at 45 km) and the fraction-of-peak limb edge; the Sun saturated (threshold
     250, 003 §5) and searched on lines spaced for 0.5 deg (`resolve_search_lines`); the Moon off
     (rarely in view in the ATEK flight; enable per scenario or ``--moon``), processed phase-aware
     (`PhaseOptions`, `vision.moon`) with the pixel noise of its threshold edge (R = 0.1 px^2,
@@ -631,7 +631,7 @@ class VisionConfig:
 
     earth: TargetConfig = TargetConfig(
         detection=DetectionConfig(BinarizeConfig(threshold=60.0, gate_min=2.0, gate_max=235.0), SearchConfig(), 40),
-        min_pixels=100, atmosphere_m=15e3, atmosphere_sigma_m=20e3,
+        min_pixels=100, atmosphere_m=10e3, atmosphere_sigma_m=22e3,
         scoring=ScoringOptions(score_rays=100),
         ransac=RansacOptions(threshold_px=4.0, max_hypotheses=100, min_inlier_fraction=0.5),
         fit=FitOptions(R_px2=0.2), edge=EdgeHeightOptions(start_m=45e3))
