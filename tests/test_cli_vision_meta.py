@@ -155,3 +155,39 @@ def test_earth_entry_carries_the_edge_height(tmp_path):
     assert math.degrees(math.acos(min(1.0, float(np.array(e["vector_c"]) @ fr.e_c_earth)))) < 0.3
     assert np.array(e["cov_c"]).shape == (3, 3)
     assert o["moon"] is None and "not processed" in o["reasons"]["moon"]
+
+
+def test_earth_with_the_moon_is_refitted_on_the_ellipsoid(tmp_path):
+    """A 25 deg pinhole at 500 km and 41 deg S with the Moon in view (`tests.poses.moon_poses`,
+    view 6), the limb lowered to the real cameras' 0-1 km. With the sidecar's position and time
+    the camera attitude follows from the Earth and the Moon (TRIAD) and the Earth is refitted on
+    the ellipsoid: its nadir is the geocentric one (0.228 deg off, the height prior's mean against
+    the rendered edge). With height and latitude only it is the substitute sphere's centre, which
+    the flattening puts 0.18 deg from the geocentric nadir here (0.356 deg off)."""
+    from scenarios.config.camera import load_camera
+
+    from tests.poses import T0_ORBIT_NS, moon_poses
+
+    cam_file = "scenarios/library/cameras/pinhole_25deg.toml"
+    cam = load_camera(cam_file)
+    R, x = moon_poses(10)[6]
+    opts = render.RenderOptions(payload_mask=None, payload_reflections=False, limb_shift_m=-45e3)
+    fr = render.render_frame(cam, R, x, ephemeris.sun_position_e(T0_ORBIT_NS), ephemeris.moon_position_e(T0_ORBIT_NS),
+                             seed=6, options=opts, cloud_seed=0)
+    (tmp_path / "v.jpg").write_bytes(render.encode_jpeg(fr.image, 90))
+    lat, lon, h = earth.ecef_to_geodetic(x)
+    (tmp_path / "pos.csv").write_text(f"image,time,x_m,y_m,z_m\nv.jpg,{format_utc(T0_ORBIT_NS)},{x[0]:.3f},{x[1]:.3f},{x[2]:.3f}\n")
+    (tmp_path / "hl.csv").write_text(f"image,height_m,lat_deg\nv.jpg,{float(h):.3f},{math.degrees(float(lat)):.9f}\n")
+    out = {}
+    for name in ("pos", "hl"):
+        p = subprocess.run([sys.executable, "-m", "scenarios.cli", "vision", "--camera", cam_file, str(tmp_path / "v.jpg"),
+                            "--meta", str(tmp_path / f"{name}.csv"), "--moon", "--json"], capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        o = json.loads(p.stdout)
+        e = o["earth"]
+        err = math.degrees(math.acos(min(1.0, float(np.array(e["vector_c"]) @ fr.e_c_earth))))
+        out[name] = (e["model"], e["attitude_from"], err, e["sigma_deg"])
+    model, body, err, sigma = out["pos"]
+    assert (model, body) == ("ellipsoid", "moon") and err < 0.25 and err < 3 * sigma, out
+    model, body, err_sphere, _ = out["hl"]
+    assert (model, body) == ("sphere", None) and err_sphere > err + 0.1, out

@@ -7,10 +7,12 @@ Moon is fitted with its apparent radius from the ephemeris; the Sun found in the
 the Moon's phase geometry (`vision.moon`). ``--json`` prints one object per image and line:
 ``{"image", "earth", "sun", "moon", "reasons", ...}`` (`image_entry`).
 
-Standalone use has no position or attitude prior, so the Earth is the substitute sphere of 003
-§2.8 (radius: the Gaussian radius of curvature at ``--lat``, or the mean Earth radius) and the
-nadir is the direction to that sphere's centre (close to the local vertical), not the geocentric
-direction of the filter's observation (003 eq. (39)); the output says so.
+Standalone use has no attitude prior, so the Earth is first fitted on the substitute sphere of 003
+§2.8 (radius: the Gaussian radius of curvature at ``--lat``, or the mean Earth radius): its nadir
+is the direction to that sphere's centre (close to the local vertical), not the geocentric
+direction of the filter's observation (003 eq. (39)); the output says so. With a position and a
+time in the sidecar and the Moon or the Sun in the image, the attitude follows from the two
+vectors and the Earth is refitted on the ellipsoid (`ellipsoid_refit`): the geocentric nadir.
 """
 from __future__ import annotations
 
@@ -67,18 +69,19 @@ def _target_dict(r, cov_c: bool = True) -> dict:
             "inlier_count": r.inlier_count, "conic_type": r.conic_type}
 
 
-def image_entry(name: str, res, cfg) -> dict:
+def image_entry(name: str, res, cfg, attitude: str | None = None) -> dict:
     """One image's ``--json`` object: ``{"image", "earth", "sun", "moon"}`` (each target's
     vector and covariance, or null with its reason in ``"reasons"``; the Earth with the edge
-    height fitted with its nadir, `VectorRecord.edge_height_m`), plus the model, the vector
-    records and the stage timings."""
+    height fitted with its nadir, `VectorRecord.edge_height_m`, its model, and ``attitude_from``,
+    the body whose direction oriented the ellipsoid (`ellipsoid_refit`) or null), plus the model,
+    the vector records and the stage timings."""
     out = {"image": name}
     for t in ("earth", "sun", "moon"):
         r = res.record(t)
         out[t] = None if r is None else _target_dict(r)
     if out["earth"] is not None:
         r = res.record("earth")
-        out["earth"].update(model=res.model, edge_height_m=float(r.edge_height_m),
+        out["earth"].update(model=res.model, attitude_from=attitude, edge_height_m=float(r.edge_height_m),
                             edge_height_sigma_m=float(r.edge_height_sigma_m))
     out["reasons"] = dict(res.reasons)
     for t in ("earth", "sun", "moon"):
@@ -127,6 +130,46 @@ def _frame_inputs(path: Path, meta, args, lat_cli):
     return h, (FramePrior(**kw) if kw else None)
 
 
+def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
+    """``(res, note)``: with the image's position ``x_e`` [m] and time ``t_ns`` and the Moon or the
+    Sun found beside the Earth, the Earth refitted on the WGS-84 ellipsoid (`vision.oblate`, 003
+    §2.8) with the camera attitude by TRIAD (`nav.rotation.triad`: the substitute sphere's nadir,
+    the local vertical, matched exactly; the body's direction from the ephemeris fixes the rotation
+    about it): the geocentric nadir instead of the sphere's centre, which differs from it by the
+    Earth's flattening (up to ~0.18 deg at 45 deg latitude from 500 km). The attitude orients the
+    ellipsoid and gates the fit; the nadir itself is the horizon's. ``note`` names the body used;
+    ``(res, None)`` when there is nothing to refit with, and the sphere's result stands when the
+    refit finds no Earth vector (its reason is kept as ``earth_ellipsoid``)."""
+    import dataclasses
+
+    from nav import earth, ephemeris
+    from nav.rotation import triad
+    from vision.frontend import FramePrior, process_frame
+
+    e = res.record("earth")
+    bodies = [r for r in (res.record("moon"), res.record("sun")) if r is not None]
+    if e is None or not bodies or res.model != "sphere":
+        return res, None
+    body = min(bodies, key=lambda r: r.sigma_deg)
+    x = np.asarray(x_e, float)
+    lat, lon, _ = earth.ecef_to_geodetic(x)
+    down = -np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    ref = {"moon": ephemeris.moon_direction_e, "sun": ephemeris.sun_direction_e}[body.target](t_ns, x)
+    try:
+        R_ec = triad(e.e_c, body.e_c, down, ref)
+    except ValueError:      # the body within a degree of the nadir: no rotation about it
+        return res, None
+    only_earth = dataclasses.replace(cfg, sun=dataclasses.replace(cfg.sun, enabled=False),
+                                     moon=dataclasses.replace(cfg.moon, enabled=False))
+    ell = process_frame(img, cam, only_earth, mask=mask, prior=FramePrior(x_e=x, R_ec=R_ec), rng=rng)
+    if ell.record("earth") is None:
+        reasons = dict(res.reasons, earth_ellipsoid=ell.reasons.get("earth", "no Earth vector"))
+        return dataclasses.replace(res, reasons=reasons), None
+    records = [ell.record("earth")] + [r for r in res.records if r.target != "earth"]
+    targets = dict(res.targets, earth=ell.targets["earth"])
+    return dataclasses.replace(res, records=records, targets=targets, model=ell.model), body.target
+
+
 def _check_cli(args):
     """--height/--lat checked; returns the latitude [rad] or None."""
     if args.height is not None and not (math.isfinite(args.height) and 0 < args.height < 5e7):
@@ -153,7 +196,7 @@ def _read_image(path: Path, args, cam):
     return img
 
 
-def _print_text(path, res, model_note) -> None:
+def _print_text(path, res, model_note, attitude: str | None = None) -> None:
     print(f"{path}:")
     for r in res.records:
         v = ", ".join(f"{c:+.6f}" for c in r.e_c)
@@ -164,6 +207,9 @@ def _print_text(path, res, model_note) -> None:
         print(f"  {t:5s} no vector: {why}")
     if res.model == "sphere":
         print(f"  earth model: {model_note}")
+    elif attitude is not None:
+        print(f"  earth model: WGS-84 ellipsoid, oriented by the attitude from the Earth and the {attitude.capitalize()} "
+              f"(TRIAD): the geocentric nadir")
 
 
 def run(args) -> int:
@@ -199,6 +245,10 @@ def run(args) -> int:
                             f"position column in --meta, or --no-earth")
         img = _read_image(p, args, cam)
         res = process_frame(img, cam, cfg, height_m=h, mask=mask, prior=prior, rng=rng)
+        attitude = None
+        row = meta.get(p.name) if meta is not None else None
+        if row is not None and row.x_e is not None and row.time_ns is not None:
+            res, attitude = ellipsoid_refit(img, cam, cfg, res, row.x_e, row.time_ns, mask, rng)
         if out_dir is not None:
             from vision.annotate import annotate_frame
 
@@ -206,7 +256,7 @@ def run(args) -> int:
             if not cv2.imwrite(str(ann), annotate_frame(img, cam, res)):
                 raise UserError(f"--annotate {args.annotate}: could not write {ann}")
         if args.json:
-            print(json.dumps(image_entry(p.name, res, cfg)), flush=True)
+            print(json.dumps(image_entry(p.name, res, cfg, attitude)), flush=True)
         else:
-            _print_text(path, res, model_note)
+            _print_text(path, res, model_note, attitude)
     return 0
