@@ -163,7 +163,10 @@ def test_earth_with_the_moon_is_refitted_on_the_ellipsoid(tmp_path):
     the camera attitude follows from the Earth and the Moon (TRIAD) and the Earth is refitted on
     the ellipsoid: its nadir is the geocentric one (0.228 deg off, the height prior's mean against
     the rendered edge). With height and latitude only it is the substitute sphere's centre, which
-    the flattening puts 0.18 deg from the geocentric nadir here (0.356 deg off)."""
+    the flattening puts 0.18 deg from the geocentric nadir here (0.356 deg off). A sidecar time an
+    hour late (local time for UTC) turns the Moon by ~15 deg in the Earth-fixed frame: the
+    Earth-Moon angle in the image disagrees with the ephemeris's, and the sphere's nadir is kept
+    with the reason."""
     from scenarios.config.camera import load_camera
 
     from tests.poses import T0_ORBIT_NS, moon_poses
@@ -178,8 +181,10 @@ def test_earth_with_the_moon_is_refitted_on_the_ellipsoid(tmp_path):
     lat, lon, h = earth.ecef_to_geodetic(x)
     (tmp_path / "pos.csv").write_text(f"image,time,x_m,y_m,z_m\nv.jpg,{format_utc(T0_ORBIT_NS)},{x[0]:.3f},{x[1]:.3f},{x[2]:.3f}\n")
     (tmp_path / "hl.csv").write_text(f"image,height_m,lat_deg\nv.jpg,{float(h):.3f},{math.degrees(float(lat)):.9f}\n")
-    out = {}
-    for name in ("pos", "hl"):
+    late = format_utc(T0_ORBIT_NS + 3_600_000_000_000)
+    (tmp_path / "late.csv").write_text(f"image,time,x_m,y_m,z_m\nv.jpg,{late},{x[0]:.3f},{x[1]:.3f},{x[2]:.3f}\n")
+    out, reasons = {}, {}
+    for name in ("pos", "hl", "late"):
         p = subprocess.run([sys.executable, "-m", "scenarios.cli", "vision", "--camera", cam_file, str(tmp_path / "v.jpg"),
                             "--meta", str(tmp_path / f"{name}.csv"), "--moon", "--json"], capture_output=True, text=True)
         assert p.returncode == 0, p.stderr
@@ -187,7 +192,11 @@ def test_earth_with_the_moon_is_refitted_on_the_ellipsoid(tmp_path):
         e = o["earth"]
         err = math.degrees(math.acos(min(1.0, float(np.array(e["vector_c"]) @ fr.e_c_earth))))
         out[name] = (e["model"], e["attitude_from"], err, e["sigma_deg"])
+        reasons[name] = o["reasons"]
     model, body, err, sigma = out["pos"]
     assert (model, body) == ("ellipsoid", "moon") and err < 0.25 and err < 3 * sigma, out
     model, body, err_sphere, _ = out["hl"]
     assert (model, body) == ("sphere", None) and err_sphere > err + 0.1, out
+    assert out["late"][:2] == ("sphere", None), out
+    assert "Earth-Moon angle" in reasons["late"]["earth_ellipsoid"] and "UTC" in reasons["late"]["earth_ellipsoid"], reasons
+    assert "earth_ellipsoid" not in reasons["pos"], reasons

@@ -138,8 +138,11 @@ def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
     about it): the geocentric nadir instead of the sphere's centre, which differs from it by the
     Earth's flattening (up to ~0.18 deg at 45 deg latitude from 500 km). The attitude orients the
     ellipsoid and gates the fit; the nadir itself is the horizon's. ``note`` names the body used;
-    ``(res, None)`` when there is nothing to refit with, and the sphere's result stands when the
-    refit finds no Earth vector (its reason is kept as ``earth_ellipsoid``)."""
+    ``(res, None)`` when there is nothing to refit with. The sphere's result stands, with the
+    reason as ``earth_ellipsoid``, when the refit finds no Earth vector or when the angle between
+    the Earth's nadir and the body in the image differs from the one the ephemeris gives at the
+    sidecar's time and position by more than 3 sigma of the two vectors (`body_angle_check`: a
+    wrong time or position, or a wrong detection)."""
     import dataclasses
 
     from nav import earth, ephemeris
@@ -155,6 +158,9 @@ def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
     lat, lon, _ = earth.ecef_to_geodetic(x)
     down = -np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
     ref = {"moon": ephemeris.moon_direction_e, "sun": ephemeris.sun_direction_e}[body.target](t_ns, x)
+    why = body_angle_check(e, body, down, ref)
+    if why:
+        return dataclasses.replace(res, reasons=dict(res.reasons, earth_ellipsoid=why)), None
     try:
         R_ec = triad(e.e_c, body.e_c, down, ref)
     except ValueError:      # the body within a degree of the nadir: no rotation about it
@@ -168,6 +174,22 @@ def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
     records = [ell.record("earth")] + [r for r in res.records if r.target != "earth"]
     targets = dict(res.targets, earth=ell.targets["earth"])
     return dataclasses.replace(res, records=records, targets=targets, model=ell.model), body.target
+
+
+def body_angle_check(e, body, down_e, body_e) -> str:
+    """Empty when the angle between the Earth's nadir ``e`` and ``body`` (`VectorRecord`s, camera
+    frame) agrees with the one between the local vertical ``down_e`` and the body's ephemeris
+    direction ``body_e`` within 3 sigma (the two vectors' 1-sigma overbounds combined); else the
+    reason. The angle needs no attitude, so it checks the sidecar's time and position against
+    the image (the Moon moves ~15 deg an hour in the Earth-fixed frame)."""
+    a_c = math.degrees(math.acos(np.clip(float(e.e_c @ body.e_c), -1.0, 1.0)))
+    a_e = math.degrees(math.acos(np.clip(float(down_e @ body_e) / float(np.linalg.norm(body_e)), -1.0, 1.0)))
+    tol = 3.0 * math.hypot(e.sigma_deg, body.sigma_deg)
+    if abs(a_c - a_e) <= tol:
+        return ""
+    return (f"the Earth-{body.target.capitalize()} angle is {a_c:.2f} deg in the image and {a_e:.2f} deg from the "
+            f"ephemeris at the sidecar's time and position ({abs(a_c - a_e):.2f} deg apart, > 3 sigma = {tol:.2f} "
+            f"deg): a wrong time (UTC?), position or detection; the sphere's nadir is kept")
 
 
 def _check_cli(args):
@@ -204,9 +226,12 @@ def _print_text(path, res, model_note, attitude: str | None = None) -> None:
               f"residual {r.residual:.3g} rad^2  {r.inlier_count}/{r.pixel_count} px  "
               f"{r.conic_type}  alpha {math.degrees(r.alpha):.3f} deg")
     for t, why in res.reasons.items():
-        print(f"  {t:5s} no vector: {why}")
+        if t != "earth_ellipsoid":
+            print(f"  {t:5s} no vector: {why}")
     if res.model == "sphere":
         print(f"  earth model: {model_note}")
+        if "earth_ellipsoid" in res.reasons:
+            print(f"  earth model: no ellipsoid refit: {res.reasons['earth_ellipsoid']}")
     elif attitude is not None:
         print(f"  earth model: WGS-84 ellipsoid, oriented by the attitude from the Earth and the {attitude.capitalize()} "
               f"(TRIAD): the geocentric nadir")
