@@ -259,7 +259,7 @@ def run(args) -> int:
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     model_note = ("sphere of radius the Gaussian radius of curvature at the latitude, else the mean Earth radius"
-                  " (no position/attitude prior: the nadir is the substitute sphere's centre, "
+                  " (no attitude prior: the nadir is the substitute sphere's centre, "
                   "003 §2.8, not the geocentric direction)")
     rng = np.random.default_rng(args.seed)
     for path in args.images:
