@@ -105,9 +105,9 @@ def _config(args, cam):
 
 
 def _frame_inputs(path: Path, meta, args, lat_cli):
-    """(height_m, FramePrior or None) of one image from --meta's row (if any) and --height/--lat;
-    with a time, the Moon's apparent radius from the ephemeris distance (from the position when
-    known, else from the Earth's centre: within 1.7 % below 6400 km)."""
+    """(height_m, FramePrior or None, --meta's row or None) of one image from --meta's row (if any)
+    and --height/--lat; with a time, the Moon's apparent radius from the ephemeris distance (from
+    the position when known, else from the Earth's centre: within 1.7 % below 6400 km)."""
     from nav import ephemeris
     from vision.frontend import FramePrior
 
@@ -127,7 +127,7 @@ def _frame_inputs(path: Path, meta, args, lat_cli):
         x = m.x_e if m.x_e is not None else np.zeros(3)
         moon_alpha = float(ephemeris.apparent_radius(moon_e, x, ephemeris.MOON_RADIUS))
     kw = {k: v for k, v in (("lat", lat), ("moon_alpha", moon_alpha)) if v is not None}
-    return h, (FramePrior(**kw) if kw else None)
+    return h, (FramePrior(**kw) if kw else None), m
 
 
 def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
@@ -156,7 +156,7 @@ def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
     body = min(bodies, key=lambda r: r.sigma_deg)
     x = np.asarray(x_e, float)
     lat, lon, _ = earth.ecef_to_geodetic(x)
-    down = -np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    down = earth.R_en(lat, lon)[:, 2]
     ref = {"moon": ephemeris.moon_direction_e, "sun": ephemeris.sun_direction_e}[body.target](t_ns, x)
     why = body_angle_check(e, body, down, ref)
     if why:
@@ -182,8 +182,10 @@ def body_angle_check(e, body, down_e, body_e) -> str:
     direction ``body_e`` within 3 sigma (the two vectors' 1-sigma overbounds combined); else the
     reason. The angle needs no attitude, so it checks the sidecar's time and position against
     the image (the Moon moves ~15 deg an hour in the Earth-fixed frame)."""
-    a_c = math.degrees(math.acos(np.clip(float(e.e_c @ body.e_c), -1.0, 1.0)))
-    a_e = math.degrees(math.acos(np.clip(float(down_e @ body_e) / float(np.linalg.norm(body_e)), -1.0, 1.0)))
+    from nav.rotation import angle_between
+
+    a_c = math.degrees(float(angle_between(e.e_c, body.e_c)))
+    a_e = math.degrees(float(angle_between(down_e, body_e)))
     tol = 3.0 * math.hypot(e.sigma_deg, body.sigma_deg)
     if abs(a_c - a_e) <= tol:
         return ""
@@ -264,14 +266,13 @@ def run(args) -> int:
     rng = np.random.default_rng(args.seed)
     for path in args.images:
         p = Path(path)
-        h, prior = _frame_inputs(p, meta, args, lat_cli)
+        h, prior, row = _frame_inputs(p, meta, args, lat_cli)
         if cfg.earth.enabled and h is None:
             raise UserError(f"{path}: no height for the Earth (003 eq. (5)): give --height, a height_m or "
                             f"position column in --meta, or --no-earth")
         img = _read_image(p, args, cam)
         res = process_frame(img, cam, cfg, height_m=h, mask=mask, prior=prior, rng=rng)
         attitude = None
-        row = meta.get(p.name) if meta is not None else None
         if row is not None and row.x_e is not None and row.time_ns is not None:
             res, attitude = ellipsoid_refit(img, cam, cfg, res, row.x_e, row.time_ns, mask, rng)
         if out_dir is not None:
