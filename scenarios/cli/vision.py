@@ -139,7 +139,8 @@ def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
     Earth's flattening (up to ~0.18 deg at 45 deg latitude from 500 km). The attitude orients the
     ellipsoid and gates the fit; the nadir itself is the horizon's. ``note`` names the body used;
     ``(res, None)`` when there is nothing to refit with. The sphere's result stands, with the
-    reason as ``earth_ellipsoid``, when the refit finds no Earth vector or when the angle between
+    reason as ``earth_ellipsoid``, when the refit finds no Earth vector, when the body is within a
+    degree of the nadir (no rotation about it), or when the angle between
     the Earth's nadir and the body in the image differs from the one the ephemeris gives at the
     sidecar's time and position by more than 3 sigma of the two vectors (`body_angle_check`: a
     wrong time or position, or a wrong detection)."""
@@ -158,13 +159,13 @@ def ellipsoid_refit(img, cam, cfg, res, x_e, t_ns: int, mask=None, rng=None):
     lat, lon, _ = earth.ecef_to_geodetic(x)
     down = earth.R_en(lat, lon)[:, 2]
     ref = {"moon": ephemeris.moon_direction_e, "sun": ephemeris.sun_direction_e}[body.target](t_ns, x)
-    why = body_angle_check(e, body, down, ref)
+    try:
+        why = body_angle_check(e, body, down, ref)
+        R_ec = None if why else triad(e.e_c, body.e_c, down, ref)
+    except ValueError as exc:      # the body within a degree of the nadir: no rotation about it
+        why = f"no attitude from the Earth and the {body.target.capitalize()}: {exc}"
     if why:
         return dataclasses.replace(res, reasons=dict(res.reasons, earth_ellipsoid=why)), None
-    try:
-        R_ec = triad(e.e_c, body.e_c, down, ref)
-    except ValueError:      # the body within a degree of the nadir: no rotation about it
-        return res, None
     only_earth = dataclasses.replace(cfg, sun=dataclasses.replace(cfg.sun, enabled=False),
                                      moon=dataclasses.replace(cfg.moon, enabled=False))
     ell = process_frame(img, cam, only_earth, mask=mask, prior=FramePrior(x_e=x, R_ec=R_ec), rng=rng)
