@@ -82,12 +82,12 @@ def _ned_az_el(x, target_e):
     return math.degrees(math.atan2(d[1], d[0])), -math.degrees(math.asin(d[2]))
 
 
-def moon_poses(n: int, seed: int = 1):
+def moon_poses(n: int, seed: int = 1, depression_deg=(12.0, 17.0)):
     """(R_ec, x_e) of n views with the Moon and the sunlit limb in the image: the vehicle where the
-    Moon stands 12-17 deg below the local horizontal (above the limb, which dips 22 deg), on the
-    Sun's side of the Moon (the limb below the Moon is in daylight, the Sun ~80 deg above the
-    horizontal, out of view); the optical axis halfway between the Moon and the limb, +-3 deg in
-    azimuth, rolled by -20..20 deg."""
+    Moon stands ``depression_deg`` (12-17 deg) below the local horizontal (above the limb, which
+    dips 22 deg), on the Sun's side of the Moon (the limb below the Moon is in daylight, the Sun
+    ~80 deg above the horizontal, out of view); the optical axis halfway between the Moon and the
+    limb, +-3 deg in azimuth, rolled by -20..20 deg."""
     rng = np.random.default_rng(seed)
     m = ephemeris.moon_position_e(T0_ORBIT_NS)
     m = m / np.linalg.norm(m)
@@ -98,7 +98,7 @@ def moon_poses(n: int, seed: int = 1):
     for _ in range(n):
         b = math.radians(rng.uniform(-30, 30))             # turn w0 about m
         w = math.cos(b) * w0 + math.sin(b) * np.cross(m, w0)
-        a = math.radians(90 + rng.uniform(12, 17))
+        a = math.radians(90 + rng.uniform(*depression_deg))
         up = math.cos(a) * m + math.sin(a) * w
         lat, lon, _ = earth.ecef_to_geodetic(up * (earth.A + H_ORBIT))
         x = earth.geodetic_to_ecef(lat, lon, H_ORBIT)

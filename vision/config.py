@@ -35,7 +35,7 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.candidates import DetectionConfig
 
 __all__ = ["TARGETS", "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "FlankOptions",
-           "CalibrationOptions", "LimbOptions", "PhaseOptions", "EdgeHeightOptions", "TargetConfig", "VisionConfig",
+           "CalibrationOptions", "LimbOptions", "PhaseOptions", "EdgeHeightOptions", "OccultationOptions", "TargetConfig", "VisionConfig",
            "FramePrior",
            "default_config", "resolve_search_lines"]
 
@@ -551,6 +551,35 @@ class EdgeHeightOptions(_Checks):
 
 
 @dataclass(frozen=True)
+class OccultationOptions(_Checks):
+    """A Sun or Moon disc against the Earth found in the same frame (`vision.occultation`; Sun and
+    Moon only, when the frame has an Earth vector).
+
+    Attributes
+    ----------
+    enabled : reject a disc whose lowest point is not above the Earth's edge, and add the
+        refraction term to the covariance of one seen through the air above it.
+    min_clearance_deg : least angle [deg] from the Earth's edge up to the disc's lowest point,
+        along the great circle through the Earth's nadir and the disc's centre: 0 rejects a disc
+        that reaches into the edge (partly hidden, the bright limb joins its outline) or lies
+        inside the Earth's disc (a cloud or a glint: the Sun and the Moon are never in front of
+        the Earth).
+    edge_sigmas : the refraction term takes the Earth's edge at its height less this many of its
+        sigmas, not below the ground: the lower the edge, the denser the air the light crosses.
+    """
+
+    enabled: bool = True
+    min_clearance_deg: float = 0.0
+    edge_sigmas: float = 3.0
+
+    def __post_init__(self):
+        if not isinstance(self.enabled, bool):
+            self._bad("enabled", "true or false")
+        self._within("min_clearance_deg", -5.0, 5.0, "an angle in [-5, 5] deg")
+        self._within("edge_sigmas", 0.0, 10.0, "a number of sigmas in [0, 10]")
+
+
+@dataclass(frozen=True)
 class TargetConfig(_Checks):
     """Processing of one target (Earth, Sun or Moon): the body, what is accepted, and the options
     of each stage.
@@ -580,9 +609,10 @@ class TargetConfig(_Checks):
         brightness edge, which lies between them and their dark neighbours: half a pixel. The
         Earth cone is shrunk by this angle (without it the nadir is biased by ~0.03 deg on
         rendered frames); the Sun/Moon radius absorbs it.
-    scoring, ransac, side_check, fit, limb, phase, edge : the stages' options (`ScoringOptions`,
-        `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`, `PhaseOptions`,
-        `EdgeHeightOptions`; limb and edge: Earth only; phase: Moon only).
+    scoring, ransac, side_check, fit, limb, phase, edge, occultation : the stages' options
+        (`ScoringOptions`, `RansacOptions`, `SideCheckOptions`, `FitOptions`, `LimbOptions`,
+        `PhaseOptions`, `EdgeHeightOptions`, `OccultationOptions`; limb and edge: Earth only;
+        phase: Moon only; occultation: Sun and Moon).
     """
 
     enabled: bool = True
@@ -602,6 +632,7 @@ class TargetConfig(_Checks):
     limb: LimbOptions = LimbOptions()
     phase: PhaseOptions = PhaseOptions()
     edge: EdgeHeightOptions = EdgeHeightOptions()
+    occultation: OccultationOptions = OccultationOptions()
 
     def __post_init__(self):
         self._ints(("min_pixels",))

@@ -61,6 +61,7 @@ import time
 
 import numpy as np
 
+from nav.ephemeris import AU, SUN_RADIUS
 from vision.binarize import as_frame, brightness_histogram
 from vision.camera import Camera, check_camera, unproject, unproject_jacobian
 from vision.candidates import detect
@@ -75,6 +76,7 @@ from vision.limb_refit import limb_refit, tilt_corrected_attitude
 from vision.mask import PayloadMask
 from vision.nadir import angle_residuals, conic_type, direction_and_radius, within_cone
 from vision.oblate import ellipsoid_model, sphere_model
+from vision.occultation import EarthEdge, occultation_reason, refraction_covariance
 from vision.results import CandidateResult, FrameResult, TargetResult, VectorRecord
 from vision.scoring import gate_reason, score_candidate
 
@@ -521,6 +523,47 @@ def _limb_prior(config: VisionConfig, prior: FramePrior | None, image):
             np.asarray(prior.x_e, dtype=float), R_ec @ np.asarray(prior.sun_c, dtype=float))
 
 
+#: the Sun's mean apparent radius [rad]
+SUN_ALPHA = math.asin(SUN_RADIUS / AU)
+
+
+def _inlier_rays(tr: TargetResult, camera: Camera) -> np.ndarray:
+    """Unit camera rays (n, 3) of a target's final inlier pixels."""
+    rays = unproject(camera, np.asarray(tr.points, dtype=float)[np.asarray(tr.inlier_mask, dtype=bool)])
+    return rays[np.isfinite(rays).all(axis=1)]
+
+
+def _earth_edge(targets: dict, camera: Camera, prior: FramePrior | None, height_m, model) -> EarthEdge | None:
+    """The frame's Earth as `vision.occultation` needs it, or None without an Earth vector."""
+    tr = targets.get("earth")
+    if tr is None or tr.record is None or tr.points is None:
+        return None
+    rec = tr.record
+    rays = _inlier_rays(tr, camera)
+    if prior is not None and prior.x_e is not None:
+        r = float(np.linalg.norm(prior.x_e))
+    else:
+        r = model.radius + float(height_m)
+    if rays.shape[0] == 0:
+        return None
+    return EarthEdge(rec.e_c, rays, rec.edge_height_m, rec.edge_height_sigma_m, r)
+
+
+def _sun_beside_earth(tr: TargetResult, camera: Camera, tc: TargetConfig, edge: EarthEdge | None) -> None:
+    """The Sun's record against the frame's Earth (`vision.occultation`): dropped with the reason
+    when its disc is not clear of the Earth's edge, else its covariance with the refraction
+    term. The Sun's own radius is the ephemeris's mean (the fitted one includes the bloom)."""
+    if edge is None:
+        return
+    rec = tr.record
+    why = occultation_reason(edge, rec.e_c, SUN_ALPHA, math.radians(tc.occultation.min_clearance_deg), "Sun")
+    if why:
+        tr.record, tr.reason = None, why
+        return
+    P = rec.P_c + refraction_covariance(edge, rec.e_c, _inlier_rays(tr, camera), tc.occultation.edge_sigmas)
+    tr.record = dataclasses.replace(rec, P_c=P, P_overbound=float(largest_eigenvalue(P)) * np.eye(3))
+
+
 def _predicted(name: str, prior: FramePrior | None):
     """Predicted unit direction of a target in the camera frame, or None: the Earth's geocentric
     nadir ``R_ec.T @ (-x_e / |x_e|)``, the Sun's/Moon's ``prior.sun_c``/``moon_c``."""
@@ -591,7 +634,7 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
             sun_c = prior.sun_c if prior is not None and prior.sun_c is not None else (
                 sun.record.e_c if sun is not None and sun.record is not None else None)
             tr = process_moon(image, camera, mask, tc, prior, _predicted(name, prior), sun_c, frame_seed, timings,
-                              hists, (t_ns, camera_id))
+                              hists, (t_ns, camera_id), _earth_edge(targets, camera, prior, height_m, model))
             targets[name] = tr
             if tr.record is None:
                 reasons[name] = tr.reason
@@ -599,6 +642,8 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
         tr = _process_target(name, image, camera, mask, tc, model if is_earth else None, frame_seed, timings,
                              baseline and is_earth, _predicted(name, prior), limb if is_earth else None, hists,
                              (t_ns, camera_id))
+        if name == "sun" and tr.record is not None and tc.occultation.enabled:
+            _sun_beside_earth(tr, camera, tc, _earth_edge(targets, camera, prior, height_m, model))
         targets[name] = tr
         if tr.record is None:
             reasons[name] = tr.reason

@@ -72,6 +72,7 @@ from vision.covariance import direction_covariance, largest_eigenvalue
 from vision.fitting import alpha_sensitivity, fit_cone, median
 from vision.image_geometry import fast_pixel_angle, gate_search_rows, max_pixel_angle
 from vision.nadir import ConeFit, conic_type, within_cone
+from vision.occultation import occultation_reason, refraction_covariance
 from vision.ransac import ransac_cone
 from vision.results import CandidateResult, TargetResult, VectorRecord
 from vision.scoring import candidate_rng, gate_reason
@@ -294,7 +295,7 @@ def _dark_outside(image, camera, mask, threshold, rays, e, alpha, step):
     return float(np.mean(b < threshold))
 
 
-def _score(k, cand, pa_c, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
+def _score(k, cand, pa_c, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed, earth_edge):
     """Steps 2-5 for candidate k (``pa_c``: the pixel angle where it lies): (CandidateResult,
     payload for the covariance or None)."""
     res = CandidateResult(index=k, n_pixels=cand.n_pixels)
@@ -326,6 +327,9 @@ def _score(k, cand, pa_c, a, camera, mask, tc, t_seed, alpha, known, sun_c, pred
     fit, inl = out
     res.fit, res.residual, res.inliers = fit, fit.residual, int(inl.sum())
     res.reason = _accept(fit, known, alpha, pa_c, predicted, tc)
+    if not res.reason and earth_edge is not None and tc.occultation.enabled:
+        res.reason = occultation_reason(earth_edge, fit.e_c, alpha, math.radians(tc.occultation.min_clearance_deg),
+                                        "Moon")
     if not res.reason:
         dark = _dark_outside(a, camera, mask, t, H[inl], fit.e_c, fit.alpha, tc.side_check.step_px * pa_c)
         if not dark >= tc.side_check.min_agree:
@@ -373,7 +377,8 @@ def _plausible(cands, a, camera, alpha: float, tc: TargetConfig):
     return idx, pa, int(big.sum()), int(small.sum())
 
 
-def _candidates(out: TargetResult, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed):
+def _candidates(out: TargetResult, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed,
+                earth_edge):
     """Steps 2-5 on ``out.detection``'s plausible candidates (`_plausible`): (the accepted
     (result, payload) pairs, whether a candidate was larger than the Moon); ``out.candidates``
     and ``out.reason`` set."""
@@ -384,7 +389,7 @@ def _candidates(out: TargetResult, a, camera, mask, tc, t_seed, alpha, known, su
     cands = det.candidates
     idx, pa, n_big, n_small = _plausible(cands, a, camera, alpha, tc)
     scored = [_score(int(i), cands[i], float(pa[i]), a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted,
-                     frame_seed) for i in idx]
+                     frame_seed, earth_edge) for i in idx]
     out.candidates = [r for r, _ in scored]
     good = [(r, p) for r, p in scored if not r.reason]
     if not good:
@@ -399,12 +404,13 @@ def _candidates(out: TargetResult, a, camera, mask, tc, t_seed, alpha, known, su
 
 
 def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None, predicted, sun_c,
-                 frame_seed: int, timings: dict, hists: dict, ids) -> TargetResult:
+                 frame_seed: int, timings: dict, hists: dict, ids, earth_edge=None) -> TargetResult:
     """The Moon's target result for one frame (steps 1-6 of the module docstring), at each seed
     threshold of ``phase.seed_percentiles`` until a candidate is accepted. ``predicted``: the
     Moon's predicted direction or None; ``sun_c``: the Sun's direction in the camera frame (the
     prior's, or the Sun found in the same frame) or None; ``hists``: the frame's brightness
-    histograms by sample step (shared with the other targets)."""
+    histograms by sample step (shared with the other targets); ``earth_edge``: the frame's Earth
+    (`vision.occultation.EarthEdge`) or None (step 5's occultation test and the refraction term)."""
     t0 = time.perf_counter()
     a = as_frame(image, (camera.height, camera.width))
     step = tc.detection.binarize.sample_step
@@ -419,7 +425,8 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
             continue
         tried.append(t_seed)
         out = TargetResult("moon", _search(a, camera, mask, tc, hist, t_seed, alpha, predicted))
-        good, too_large = _candidates(out, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed)
+        good, too_large = _candidates(out, a, camera, mask, tc, t_seed, alpha, known, sun_c, predicted, frame_seed,
+                                      earth_edge)
         if good or not too_large:
             break           # a higher seed only splits regions larger than the Moon
     t1 = time.perf_counter()
@@ -430,6 +437,8 @@ def process_moon(image, camera, mask, tc: TargetConfig, prior: FramePrior | None
     out.winner = win.index
     rays, J = unproject_jacobian(camera, edge.points[inl])
     P = moon_covariance(rays, J, fit, H[inl], known, pa, sigma_alpha, tc, full)
+    if earth_edge is not None and tc.occultation.enabled:
+        P = P + refraction_covariance(earth_edge, fit.e_c, H[inl], tc.occultation.edge_sigmas)
     timings["moon.covariance"] = time.perf_counter() - t1
     out.points, out.inlier_mask = edge.points, inl
     lam = float(largest_eigenvalue(P))
