@@ -80,7 +80,7 @@ def refraction_bending(h_m) -> np.ndarray:
     Examples
     --------
     >>> round(float(np.degrees(refraction_bending(0.0))), 2)
-    1.02
+    1.01
     """
     h = np.clip(np.asarray(h_m, dtype=float), 0.0, None)
     z, rho = STANDARD_DENSITY[:, 0], np.log(STANDARD_DENSITY[:, 1])

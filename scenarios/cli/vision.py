@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +50,15 @@ def add_arguments(p) -> None:
     p.add_argument("--mask", default=None, help="payload mask image (non-zero = ignored), the camera's size")
     p.add_argument("--annotate", default=None, metavar="DIR", help="write annotated PNGs into DIR")
     p.add_argument("--json", action="store_true", help="print JSON, one object per image and line")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default 0)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="RANSAC seed (default 0); each image's generator is seeded by it and the image's file name, "
+                        "so an image gives the same result alone or in any batch")
+
+
+def image_rng(seed: int, name: str) -> np.random.Generator:
+    """RANSAC generator of one image: seeded by ``seed`` and the image's file ``name`` (CRC-32),
+    not by its place in the call, so that its vectors do not depend on the other images."""
+    return np.random.default_rng([seed, zlib.crc32(name.encode("utf-8"))])
 
 
 def _record_dict(r) -> dict:
@@ -264,9 +273,9 @@ def run(args) -> int:
     model_note = ("sphere of radius the Gaussian radius of curvature at the latitude, else the mean Earth radius"
                   " (no attitude prior: the nadir is the substitute sphere's centre, "
                   "003 §2.8, not the geocentric direction)")
-    rng = np.random.default_rng(args.seed)
     for path in args.images:
         p = Path(path)
+        rng = image_rng(args.seed, p.name)
         h, prior, row = _frame_inputs(p, meta, args, lat_cli)
         if cfg.earth.enabled and h is None:
             raise UserError(f"{path}: no height for the Earth (003 eq. (5)): give --height, a height_m or "
