@@ -162,3 +162,25 @@ def sun_and_moon(rng: np.random.Generator, camera, seed: int = 0) -> tuple[MoonF
     k = (1.0 - float(s_c @ m_c)) / 2.0
     return MoonFrame(fr.image, camera, fr.e_c_moon, fr.e_c_sun, math.asin(MOON_RADIUS_M / dist), dist, k,
                      math.nan), fr
+
+
+def pinhole_moon_view(i: int, width: int = 640):
+    """(camera, RenderedFrame, x_e) of `tests.poses.moon_poses` view ``i`` (of 4) through the 25 deg
+    pinhole of scenarios/library/cameras/pinhole_25deg.toml scaled to ``width`` px (4:3), the
+    limb lowered to the real cameras' 0-1 km, the Moon at T0_ORBIT_NS (half lit)."""
+    from nav import ephemeris
+    from scenarios.config.camera import load_camera
+    from vision.camera import from_opencv
+
+    from tests.poses import T0_ORBIT_NS, moon_poses
+
+    cam = load_camera("scenarios/library/cameras/pinhole_25deg.toml")
+    s, h = width / cam.width, width * 3 // 4
+    K = np.array([[cam.fx * s, 0.0, (width - 1) / 2], [0.0, cam.fy * s, (h - 1) / 2], [0.0, 0.0, 1.0]])
+    small = from_opencv(K, [-0.08, 0.12, 0.0002, -0.0001, 0.0], width, h, name=f"pinhole_25deg_{width}",
+                        model="pinhole")
+    R, x = moon_poses(4)[i]
+    opts = render.RenderOptions(payload_mask=None, payload_reflections=False, limb_shift_m=-45e3)
+    fr = render.render_frame(small, R, x, ephemeris.sun_position_e(T0_ORBIT_NS), ephemeris.moon_position_e(T0_ORBIT_NS),
+                             seed=i, options=opts, cloud_seed=i)
+    return small, fr, x

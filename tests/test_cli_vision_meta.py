@@ -203,35 +203,29 @@ def test_earth_with_the_moon_is_refitted_on_the_ellipsoid(tmp_path):
 
 
 def test_an_image_gives_the_same_vectors_alone_or_in_a_batch(tmp_path):
-    """Each image's RANSAC generator is seeded by --seed and its file name, not by its place in
-    the call: two horizon views with the Moon (`tests.poses.moon_poses`, the 25 deg pinhole at
-    640x480) give the second one's Earth and Moon entries identical, to the last bit, whether it is
-    processed alone, after the first or before it. With one generator shared along the call its
-    Earth inliers and Moon vector changed with the image before it (a Moon 13 px across moved by
-    6e-5 in vector_c, and by 0.23 deg on another view)."""
-    from scenarios.config.camera import load_camera
-    from vision.camera import from_opencv
+    """Each image's RANSAC generator is seeded by --seed and its file name (`image_rng`), not drawn
+    along the call: of two horizon views with the Moon (`tests.moon_frames.pinhole_moon_view` 0
+    and 2, the 25 deg pinhole at 4096x3072), the second's Earth and Moon entries are identical,
+    to the last bit, whether it is processed alone, after the first or before it. Its Earth fit
+    depends on the draws (4586-4707 inliers over seeds 0-6), and with one generator shared along
+    the call it changed with the image before it (--seed 1: 4616 inliers alone, 4707 after the
+    other view)."""
+    from tests.moon_frames import pinhole_moon_view
+    from tests.poses import T0_ORBIT_NS
 
-    from tests.poses import T0_ORBIT_NS, moon_poses
-
-    cam = load_camera("scenarios/library/cameras/pinhole_25deg.toml")
-    K = np.array([[cam.fx / 2, 0.0, 319.5], [0.0, cam.fy / 2, 239.5], [0.0, 0.0, 1.0]])
-    small = from_opencv(K, [-0.08, 0.12, 0.0002, -0.0001, 0.0], 640, 480, name="p640", model="pinhole")
-    save_camera(small, tmp_path / "cam.toml")
-    opts = render.RenderOptions(payload_mask=None, payload_reflections=False, limb_shift_m=-45e3)
     rows = ["image,time,x_m,y_m,z_m"]
-    for i, (R, x) in enumerate(moon_poses(2)):
-        fr = render.render_frame(small, R, x, ephemeris.sun_position_e(T0_ORBIT_NS),
-                                 ephemeris.moon_position_e(T0_ORBIT_NS), seed=i, options=opts, cloud_seed=i)
+    for i in (0, 2):
+        cam, fr, x = pinhole_moon_view(i, width=4096)
         (tmp_path / f"v{i}.jpg").write_bytes(render.encode_jpeg(fr.image, 90))
         rows.append(f"v{i}.jpg,{format_utc(T0_ORBIT_NS)},{x[0]:.3f},{x[1]:.3f},{x[2]:.3f}")
+    save_camera(cam, tmp_path / "cam.toml")
     (tmp_path / "meta.csv").write_text("\n".join(rows) + "\n")
     entries = []
-    for names in (["v1"], ["v0", "v1"], ["v1", "v0"]):
+    for names in (["v2"], ["v0", "v2"], ["v2", "v0"]):
         p = _run(tmp_path, *[str(tmp_path / f"{n}.jpg") for n in names], "--meta", str(tmp_path / "meta.csv"),
-                 "--moon", "--json")
+                 "--moon", "--json", "--seed", "1")
         assert p.returncode == 0, p.stderr
         out = {o["image"]: o for o in map(json.loads, p.stdout.splitlines())}
-        entries.append((out["v1.jpg"]["earth"], out["v1.jpg"]["moon"]))
+        entries.append((out["v2.jpg"]["earth"], out["v2.jpg"]["moon"]))
     assert entries[0][0] is not None and entries[0][1] is not None, entries[0]
-    assert entries[1] == entries[0] and entries[2] == entries[0]
+    assert entries[1] == entries[0] and entries[2] == entries[0], [e[0]["inlier_count"] for e in entries]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -14,7 +15,7 @@ from vision.borders import SearchConfig, find_borders
 from vision.candidates import split_borders
 from vision.config import FramePrior, PhaseOptions, VisionConfig
 from vision.frontend import process_frame
-from vision.moon import lit_side, outward_normals
+from vision.moon import lit_direction, lit_side, outward_normals
 
 
 def _moon_only(**phase) -> VisionConfig:
@@ -56,6 +57,53 @@ def test_lit_side_keeps_the_sun_facing_half_without_cusps():
     assert lit_side(H, e, -e, math.radians(15.0)).all()
 
 
+def test_lit_direction_closed_form():
+    """`lit_direction` on rays round a cone about e with the brightness inside ``c + cos(psi -
+    phi)``: the direction is phi's and the strength ``|sum w t| / sum |w|`` is ``(n / 2) / (n 2 /
+    pi) = pi / 4`` (the mean of cos^2 over the mean of |cos|); a disc as bright all round has
+    strength 0. Tolerances: 1e-9 on the direction (the sum of cos(psi - phi) t over equally
+    spaced rays is exact up to rounding); 1e-4 on the strength, whose sum of |cos| over 360 rays
+    differs from its integral by ~1e-5 relative (|cos| has kinks)."""
+    e = np.array([0.0, 0.0, 1.0])
+    psi = np.linspace(0.0, 2 * math.pi, 360, endpoint=False)
+    a = math.radians(0.26)
+    H = np.column_stack([math.sin(a) * np.cos(psi), math.sin(a) * np.sin(psi), np.full(psi.size, math.cos(a))])
+    phi = 2.0
+    d, strength = lit_direction(H, e, 100.0 + 40.0 * np.cos(psi - phi))
+    assert np.allclose(d, [math.cos(phi), math.sin(phi), 0.0], atol=1e-9) and abs(strength - math.pi / 4) < 1e-4
+    assert lit_direction(H, e, np.full(psi.size, 120.0))[1] == 0.0
+
+
+def test_a_small_half_moon_is_not_mirrored():
+    """A half Moon 13 px across over the Earth's limb (`tests.poses.moon_poses` view 2, the 25 deg
+    pinhole at 640x480, limb lowered to 0-1 km), with the sidecar's radius but no Sun direction:
+    its flat terminator and its round lit limb differ by a pixel at the cusps, and a RANSAC
+    draw that takes the terminator for the limb put the centre a radius away (0.23 deg, 3 sigma
+    0.049) on 4 of 100 seeds. The brightness inside the edge gives the lit side: inside 3 sigma
+    on all 100 seeds."""
+    from nav import earth, ephemeris
+    from scenarios.sim import render
+    from vision.config import default_config
+
+    from tests.moon_frames import pinhole_moon_view
+    from tests.poses import T0_ORBIT_NS
+
+    small, fr, x = pinhole_moon_view(2)
+    m_e = ephemeris.moon_position_e(T0_ORBIT_NS)
+    img = cv2.imdecode(np.frombuffer(render.encode_jpeg(fr.image, 90), np.uint8), cv2.IMREAD_COLOR)
+    cfg = default_config(small.fx)
+    cfg = dataclasses.replace(cfg, moon=dataclasses.replace(cfg.moon, enabled=True))
+    lat, _, h = earth.ecef_to_geodetic(x)
+    prior = FramePrior(lat=float(lat), moon_alpha=float(ephemeris.apparent_radius(m_e, x, ephemeris.MOON_RADIUS)))
+    out = 0
+    for seed in range(100):
+        res = process_frame(img, small, cfg, height_m=float(h), prior=prior, rng=np.random.default_rng(seed))
+        rec = res.record("moon")
+        assert rec is not None, (seed, res.reasons)
+        out += _ang(rec.e_c, fr.e_c_moon) > 3 * rec.sigma_deg
+    assert out == 0, out
+
+
 @pytest.fixture(scope="module")
 def moons():
     return moon_set(40, seed=11)
@@ -84,10 +132,13 @@ def test_rendered_moons(moons, prior):
     direction RMS <= 0.02 deg, >= 97 % inside 3 sigma of the overbound (003 eq. (37)).
     "ephemeris": the prior gives the Sun's direction and the Moon's apparent radius (the replay);
     "sun only": the Sun's direction, the mean radius with its spread in the covariance; "radius
-    only": the apparent radius (the vision command with a time), the lit side from the edge
-    (RANSAC on the whole edge); "none": neither. Measured on 120 frames: 0.006 / 0.014 / 0.009 /
-    0.015 deg RMS, 100 / 100 / 98 / 98 % contained (the last 93 % on another 60); "none" is held
-    to 90 %."""
+    only": the apparent radius (the vision command with a time), the lit side from the
+    brightness inside the edge (`vision.moon.lit_direction`); "none": neither. Measured on these
+    40 frames: 0.003 / 0.015 / 0.006 / 0.015 deg RMS, all contained, 39 / 39 / 40 / 40 found; on
+    120 more (seeds 11, 31) and 200 more (seeds 7, 21, 22 rectilinear) every frame found is
+    contained and 99.5-100 % are found. With the lit side from the RANSAC inliers' geometry
+    alone, "radius only" and "none" were 98.3-100 % and 95.0-98.5 % contained on those sets
+    (gibbous Moons whose dim terminator side was fitted as the limb, 1-14 px off)."""
     cfg = _moon_only()
     err, inside, found = [], [], 0
     for f in moons:
@@ -103,7 +154,7 @@ def test_rendered_moons(moons, prior):
     rms = math.sqrt(np.mean(np.square(err)))
     assert found >= 0.95 * len(moons)
     assert rms <= 0.02, rms
-    assert np.mean(inside) >= (0.97 if prior != "none" else 0.90), np.mean(inside)
+    assert np.mean(inside) >= 0.97, np.mean(inside)
 
 
 def test_moons_over_the_earth():

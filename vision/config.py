@@ -398,6 +398,12 @@ class PhaseOptions(_Checks):
     full_sigma_px : 1-sigma [px] per axis added to a disc fitted all round without a known lit
         side (no Sun direction, no terminator found): a nearly full Moon's terminator may run up
         to a pixel inside half of its outline, moving the centre by up to half a pixel.
+    inner_step_px : without the Sun's direction, the lit side is found from the brightness this
+        many pixels inside each edge point (`vision.moon.lit_direction`): 1 px stays inside a
+        Moon 8 px across.
+    min_lit_strength : least strength (0..1) of that brightness direction for it to give the lit
+        side; below it (a disc about as bright inside all round: a nearly full Moon) the lit side
+        comes from the geometry of the RANSAC inliers.
     """
 
     aware: bool = True
@@ -413,6 +419,8 @@ class PhaseOptions(_Checks):
     spacing_radii: float = 0.4
     edge_sigma_px: float = 0.25
     full_sigma_px: float = 0.3
+    inner_step_px: float = 1.0
+    min_lit_strength: float = 0.3
 
     def __post_init__(self):
         if not isinstance(self.aware, bool):
@@ -431,6 +439,8 @@ class PhaseOptions(_Checks):
         self._finite(("min_contrast", "edge_sigma_px", "full_sigma_px"))
         self._within("limb_margin_deg", 0.0, 60.0, "an angle in [0, 60] deg")
         self._within("spacing_radii", 0.1, 4.0, "a multiple in [0.1, 4] of the expected radius")
+        self._within("inner_step_px", 0.5, 10.0, "a distance in [0.5, 10] px")
+        self._within("min_lit_strength", 0.0, 1.0, "a strength in [0, 1]")
 
 
 @dataclass(frozen=True)

@@ -33,13 +33,16 @@ Steps (`process_moon`)
    (95th percentile of its seeded pixels) and its local background (median of the window's rim),
    and the edge re-traced at ``bg + edge_fraction (peak - bg)`` (`vision.borders.find_borders`
    on the window): a dim Moon's edge is where its own brightness steps.
-3. Lit limb (`lit_limb_start`): the edge's outward normals in the image against s_t's image
-   direction (from the camera's `project`); without the Sun's direction, a RANSAC cone fit of the
-   whole edge (000 §2.3; the limb is the longest circular arc) gives the centre and s_t is the
-   mean radial direction of its inliers, the middle of the lit limb (when they lie all round, a
-   nearly full Moon, s_t points away from those inside the cone by a pixel or more: its
-   terminator). Points within
-   ``limb_margin_deg`` of perpendicular (the cusps) are dropped.
+3. Lit limb (`lit_limb_starts`): the edge's outward normals in the image against s_t's image
+   direction (from the camera's `project`). Without the Sun's direction, a RANSAC cone fit of
+   the whole edge (000 §2.3; the limb is the longest circular arc) gives a centre, and s_t is
+   the direction of the edge points whose inside is brightest (`lit_direction`: the lit limb is
+   a step up to the disc's brightest values, the terminator a slope from the dark side); the
+   points whose outward normals face it are fitted first. When that fit fails, or the disc is
+   about as bright inside all round (a nearly full Moon), s_t is the mean radial direction of
+   the RANSAC inliers, the middle of the lit limb (when they lie all round, s_t points away from
+   those inside the cone by a pixel or more: its terminator), and a fit facing away from the
+   bright side is refused. Points within
 4. Fit (`fit_lit_limb`): the constrained fit of 003 eq. (24) with alpha known (less the edge
    offset): the prior's apparent radius (the ephemeris distance), else the mean radius
    ``radius_deg`` with its uncertainty ``radius_sigma`` in the covariance; or, with
@@ -78,7 +81,7 @@ from vision.results import CandidateResult, TargetResult, VectorRecord
 from vision.scoring import candidate_rng, gate_reason
 
 __all__ = ["expected_alpha", "seed_threshold", "moon_detection", "outward_normals", "size_gate", "trace_candidate",
-           "sun_image_direction", "lit_side", "lit_limb_start", "fit_lit_limb", "moon_covariance",
+           "sun_image_direction", "lit_side", "inner_brightness", "lit_direction", "lit_limb_starts", "fit_lit_limb", "moon_covariance",
            "process_moon"]
 
 
@@ -204,17 +207,55 @@ def lit_side(H: np.ndarray, e: np.ndarray, s: np.ndarray | None, margin: float) 
     return c > math.sin(margin)
 
 
-def lit_limb_start(edge: Candidate, H, thr, alpha_fit, sun_c, e0, camera, tc: TargetConfig, rng):
-    """Step 3: (first selection (m,) bool, Sun direction s for `lit_side` or None) or a reason.
-    With ``sun_c``: the outward normals against s_t's image direction at e0; without it: a
-    RANSAC cone fit of the whole edge and s_t the mean radial direction of its inliers."""
+def inner_brightness(a: np.ndarray, edge: Candidate, step_px: float) -> np.ndarray:
+    """Brightness (m,) of the frame ``a`` (H, W, C) ``step_px`` pixels inside each edge point,
+    along its inward normal (`outward_normals`), at the nearest pixel (NaN outside the frame)."""
+    p = edge.points - step_px * outward_normals(edge.points, edge.closed)
+    iu, iv = np.rint(p[:, 0]), np.rint(p[:, 1])
+    ok = (iu >= 0) & (iv >= 0) & (iu < a.shape[1]) & (iv < a.shape[0])
+    b = np.full(p.shape[0], np.nan)
+    b[ok] = a[iv[ok].astype(np.int64), iu[ok].astype(np.int64)].reshape(int(ok.sum()), -1).mean(axis=1)
+    return b
+
+
+def lit_direction(H: np.ndarray, e: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """(unit tangent direction (3,) at ``e`` towards the Moon's lit side, its strength in
+    [0, 1]) from the brightness ``b`` just inside each edge ray ``H`` (`inner_brightness`).
+
+    The lit limb is a step up to the disc's brightest values, the terminator a slope from the
+    dark side (Lommel-Seeliger: the brightness falls to zero at the terminator), so the inside
+    of the lit limb is brighter than the outline's mean and that of the terminator darker:
+    ``v = sum w t``, ``w`` the brightness about its mean and ``t`` the rays' radial directions
+    about e, points to the lit side. Strength ``|v| / sum |w|``: 0 for a disc of even
+    brightness all round (a full Moon), 1 when the bright and dark halves face each other."""
+    ok = np.isfinite(b)
+    tp = H[ok] - np.outer(H[ok] @ e, e)
+    tp /= np.linalg.norm(tp, axis=1)[:, None]
+    w = b[ok] - b[ok].mean()
+    v = w @ tp
+    n, den = float(np.linalg.norm(v)), float(np.abs(w).sum())
+    if n == 0.0 or den == 0.0:
+        return np.zeros(3), 0.0
+    return v / n, n / den
+
+
+def lit_limb_starts(edge: Candidate, H, thr, alpha_fit, sun_c, e0, camera, tc: TargetConfig, rng, a):
+    """Step 3: the first selections of the lit limb to fit, in the order to try them, each
+    ((m,) bool, Sun direction s for `lit_side` or None, the lit side the fit must face or None),
+    or a reason. With ``sun_c``: the outward normals against s_t's image direction at e0.
+    Without it, a RANSAC cone fit of the whole edge gives a centre, and where the brightness
+    inside the edge points to a side (`lit_direction`, strength at least
+    ``phase.min_lit_strength``) the edge points whose outward normals face that side come first
+    (they need no exact centre: a RANSAC draw on a small half Moon can take its flat terminator
+    for the limb); then the RANSAC inliers on the side of their mean radial direction, whose fit
+    must face the bright side when there is one (`_facing`). ``a``: the frame (H, W, C)."""
     margin = math.radians(tc.phase.limb_margin_deg)
     if sun_c is not None:
         s = np.asarray(sun_c, float) / np.linalg.norm(sun_c)
         d = sun_image_direction(camera, e0, s)
         if d is None:
-            return np.ones(H.shape[0], bool), None
-        return outward_normals(edge.points, edge.closed) @ d > math.sin(margin), s
+            return [(np.ones(H.shape[0], bool), None, None)]
+        return [(outward_normals(edge.points, edge.closed) @ d > math.sin(margin), s, None)]
     need = max(5, int(0.25 * H.shape[0]))
     try:
         rr = ransac_cone(H, rng, alpha=alpha_fit, threshold=thr, confidence=tc.ransac.confidence,
@@ -223,6 +264,13 @@ def lit_limb_start(edge: Candidate, H, thr, alpha_fit, sun_c, e0, camera, tc: Ta
     except ValueError as exc:
         return f"no cone on the whole edge: {exc}"
     e = rr.fit.e_c
+    starts = []
+    d, strength = lit_direction(H, e, inner_brightness(a, edge, tc.phase.inner_step_px))
+    d_img = sun_image_direction(camera, e, d) if strength >= tc.phase.min_lit_strength else None
+    if d_img is not None:
+        starts.append((outward_normals(edge.points, edge.closed) @ d_img > 0.0, d, None))
+    else:
+        d = None
     tp = H - np.outer(H @ e, e)
     tp /= np.linalg.norm(tp, axis=1)[:, None]
     st = tp[rr.inliers].mean(axis=0)
@@ -232,9 +280,9 @@ def lit_limb_start(edge: Candidate, H, thr, alpha_fit, sun_c, e0, camera, tc: Ta
         inside = rr.inliers & (np.arccos(np.clip(H @ e, -1.0, 1.0)) - rr.fit.alpha
                                < -1.0 * thr / tc.ransac.threshold_px)
         if inside.sum() < 0.15 * rr.inliers.sum():
-            return rr.inliers, None
+            return starts + [(rr.inliers, None, d)]
         st = -tp[inside].mean(axis=0)
-    return rr.inliers & lit_side(H, e, st, margin), st / np.linalg.norm(st)
+    return starts + [(rr.inliers & lit_side(H, e, st, margin), st / np.linalg.norm(st), d)]
 
 
 def fit_lit_limb(H, sel, s, alpha_fit, thr, margin, need, n_iter: int = 8):
@@ -316,11 +364,16 @@ def _score(k, cand, pa_c, a, camera, mask, tc, t_seed, alpha, known, sun_c, pred
     alpha_fit = alpha - tc.edge_offset_px * median(pa) if known else None
     e0 = predicted if predicted is not None else unproject(camera, uv.mean(axis=0))
     need = max(5, int(math.ceil(0.4 * math.pi * r_px)))
-    st = lit_limb_start(edge, H, thr, alpha_fit, sun_c, e0, camera, tc, candidate_rng(frame_seed, cand))
-    if isinstance(st, str):
-        res.reason = st
+    starts = lit_limb_starts(edge, H, thr, alpha_fit, sun_c, e0, camera, tc, candidate_rng(frame_seed, cand), a)
+    if isinstance(starts, str):
+        res.reason = starts
         return res, None
-    out = fit_lit_limb(H, st[0], st[1], alpha_fit, thr, math.radians(tc.phase.limb_margin_deg), need)
+    for sel, s, facing in starts:
+        out = fit_lit_limb(H, sel, s, alpha_fit, thr, math.radians(tc.phase.limb_margin_deg), need)
+        if not isinstance(out, str):
+            out = out if facing is None else _facing(H, out, facing)
+        if not isinstance(out, str):
+            break
     if isinstance(out, str):
         res.reason = out
         return res, None
@@ -334,7 +387,20 @@ def _score(k, cand, pa_c, a, camera, mask, tc, t_seed, alpha, known, sun_c, pred
         dark = _dark_outside(a, camera, mask, t, H[inl], fit.e_c, fit.alpha, tc.side_check.step_px * pa_c)
         if not dark >= tc.side_check.min_agree:
             res.reason = f"bright just outside the fitted limb ({dark:.2f} of the probes dark)"
-    return res, (edge, H, inl, fit, pa_c, st[1] is None)
+    return res, (edge, H, inl, fit, pa_c, s is None)
+
+
+def _facing(H: np.ndarray, out, d: np.ndarray):
+    """``out`` (ConeFit, inliers) when its lit limb faces the lit side ``d`` that the brightness
+    inside the edge gives (the inliers' mean radial direction about the centre within 90 deg of
+    it), else the reason."""
+    fit, inl = out
+    e = fit.e_c
+    tp = H[inl] - np.outer(H[inl] @ e, e)
+    m = (tp / np.linalg.norm(tp, axis=1)[:, None]).mean(axis=0)
+    if float(m @ d) > 0.0:
+        return out
+    return "the fitted lit limb faces away from the bright side inside the edge (a terminator taken for the limb)"
 
 
 def _accept(fit: ConeFit, known: bool, alpha: float, pa: float, predicted, tc: TargetConfig) -> str:
