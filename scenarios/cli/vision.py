@@ -216,14 +216,23 @@ def _check_cli(args):
 
 
 def _read_image(path: Path, args, cam):
-    from scenarios.flightlog.jpeg import decode_frame
+    """The image as the front end takes it (`scenarios.flightlog.jpeg.decode_image`: 8-bit, 16-bit
+    data scaled by its significant bits, said on stderr) or a one-line error."""
+    import sys
+
+    from scenarios.flightlog.jpeg import decode_image
 
     if not path.is_file():
         raise UserError(f"{path}: image file not found")
     data = np.fromfile(path, dtype=np.uint8)
-    img = decode_frame(data.tobytes()) if data.size else None
+    try:
+        img, bits = decode_image(data.tobytes(), str(path)) if data.size else (None, 0)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     if img is None:
         raise UserError(f"{path}: not an image OpenCV can decode (expected JPEG, PNG, ...)")
+    if bits > 8:
+        print(f"{path}: 16-bit image, {bits} significant bits, scaled to 8 bits", file=sys.stderr)
     if img.shape[:2] != (cam.height, cam.width):
         raise UserError(f"{path}: size {img.shape[1]}x{img.shape[0]}, but camera file {args.camera} "
                         f"is {cam.width}x{cam.height}")

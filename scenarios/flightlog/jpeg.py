@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["decode_frame"]
+__all__ = ["decode_frame", "decode_image", "SENSOR_BITS", "to_8bit"]
 
 
 def decode_frame(data: bytes) -> np.ndarray | None:
     """(H, W, 3) uint8 BGR image (OpenCV's channel order) of an encoded frame, None when the bytes
     are not a decodable image. JPEG: `simplejpeg` (libjpeg-turbo); anything else (PNG, ...):
-    ``cv2.imdecode``."""
+    ``cv2.imdecode``. Neither applies an EXIF orientation (the pixels as the sensor read them)."""
     import simplejpeg
     buf = bytes(data) if not isinstance(data, bytes) else data
     if simplejpeg.is_jpeg(buf):
@@ -26,4 +26,50 @@ def decode_frame(data: bytes) -> np.ndarray | None:
         except ValueError:
             pass        # damaged or unusual (e.g. CMYK) JPEG: OpenCV decides
     import cv2
-    return cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+#: bit depths of sensor data in a 16-bit container, tried in turn (`to_8bit`)
+SENSOR_BITS = (10, 12, 14, 16)
+
+
+def to_8bit(img: np.ndarray, what: str) -> tuple[np.ndarray, int]:
+    """(8-bit image, its source's significant bits) of a decoded frame. ``uint8`` passes as it is;
+    ``uint16`` (PNG/TIFF of a scientific camera, often 10-14-bit data in a 16-bit container) is
+    scaled by the smallest of `SENSOR_BITS` that holds its largest value, ``round(v 255 /
+    (2^bits - 1))``, keeping its tone curve (the front end expects frames as cameras encode
+    them). Taking the top byte instead (``v >> 8``) leaves 12-bit data at 0-15, a black frame.
+    Other pixel types: ValueError naming ``what``.
+
+    Examples
+    --------
+    >>> to_8bit(np.array([[0, 4095]], np.uint16), "f")
+    (array([[  0, 255]], dtype=uint8), 12)
+    """
+    if img.dtype == np.uint8:
+        return img, 8
+    if img.dtype != np.uint16:
+        raise ValueError(f"{what}: pixel type {img.dtype}, expected 8- or 16-bit unsigned integers")
+    top = int(img.max()) if img.size else 0
+    bits = next(b for b in SENSOR_BITS if top < 2 ** b)
+    out = np.rint(img.astype(np.float32) * np.float32(255.0 / (2 ** bits - 1))).astype(np.uint8)
+    return out, bits
+
+
+def decode_image(data: bytes, what: str) -> tuple[np.ndarray | None, int]:
+    """(8-bit frame, its source's significant bits) of an image file's bytes, (None, 0) when they
+    are not a decodable image: JPEG as `decode_frame`; anything else (PNG, TIFF, ...) as stored,
+    16-bit data scaled by `to_8bit`, an alpha channel dropped. Pixels as the sensor gave them:
+    an EXIF orientation is not applied (the camera file describes the sensor's rows)."""
+    import simplejpeg
+    buf = bytes(data) if not isinstance(data, bytes) else data
+    if simplejpeg.is_jpeg(buf):
+        img = decode_frame(buf)
+        return img, (8 if img is not None else 0)
+    import cv2
+    img = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None, 0
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[:, :, :3]
+    return to_8bit(img, what)

@@ -76,11 +76,16 @@ def check_jpeg(b: bytes, width: int, height: int, what: str, decode: bool) -> No
 
 
 def encode_jpeg(img: np.ndarray, quality: int, what: str) -> bytes:
+    """The frame as JPEG bytes; 16-bit frames scaled to 8 bits by their significant bits
+    (`scenarios.flightlog.jpeg.to_8bit`)."""
     import cv2
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        raise UserError(f"{what}: pixel type {img.dtype} is not supported (expected 8- or 16-bit)")
+
+    from scenarios.flightlog.jpeg import to_8bit
+
+    try:
+        img, _ = to_8bit(img, what)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, :3]
     ok, buf = cv2.imencode(".jpg", img, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
