@@ -30,7 +30,8 @@ _OPTS = render.RenderOptions(clouds=False, payload_mask=None, exposure=1.0, whit
 class MoonFrame:
     """One frame: ``image`` as decoded from JPEG (BGR), the camera, the truth Moon and Sun
     directions in the camera frame, the Moon's apparent radius [rad] and distance [m], the
-    illuminated fraction and the peak linear signal of the lit limb."""
+    illuminated fraction, the peak linear signal of the lit limb and, where the Earth is in view,
+    the truth geocentric nadir in the camera frame."""
 
     image: np.ndarray
     camera: object
@@ -40,6 +41,7 @@ class MoonFrame:
     distance_m: float
     lit_fraction: float
     signal: float
+    earth_c: np.ndarray | None = None
 
 
 def _unit(v):
@@ -141,7 +143,7 @@ def moon_over_earth(rng: np.random.Generator, diameter_px: float, lit_fraction: 
     opts = render.RenderOptions(payload_mask=None, cloud_map_size=256, lens_flare=False)
     fr = render.render_frame(camera, R_ec, x, x + AU_M * s_e, x + dist * m_e, seed=seed, options=opts)
     img = cv2.imdecode(np.frombuffer(render.encode_jpeg(fr.image, 90), np.uint8), cv2.IMREAD_COLOR)
-    return MoonFrame(img, camera, fr.e_c_moon, fr.e_c_sun, alpha, dist, lit_fraction, math.nan)
+    return MoonFrame(img, camera, fr.e_c_moon, fr.e_c_sun, alpha, dist, lit_fraction, math.nan, fr.e_c_earth)
 
 
 def sun_and_moon(rng: np.random.Generator, camera, seed: int = 0) -> tuple[MoonFrame, object]:

@@ -188,3 +188,32 @@ def test_a_sun_sized_glint_on_the_earth_is_not_the_sun():
     res = process_frame(img, CAM, cfg, height_m=float(h), prior=prior)
     assert res.record("earth") is not None and res.record("sun") is None
     assert "inside the Earth's disc, not the Sun" in res.reasons["sun"]
+
+
+def test_reasons_follow_the_tangent_height():
+    """`occultation_reason` on a synthetic edge (a 69.03 deg cone about z, the edge at a tangent
+    height of 45 km, seen from 500 km over a 6378.137 km sphere): a disc of radius 0.27 deg whose
+    top stands above the edge reaches into it; one whose top ray passes 12 km above the ground
+    (centre 68.02 deg from the nadir: h = r sin(68.29 deg) - R) is seen through the air, bent by
+    up to a degree; one whose top is 19 km below the ground (67.33 deg) is not the body. The
+    tangent heights are the closed form ``h_E + r (sin theta - sin theta_E)``."""
+    from vision.occultation import EarthEdge, occultation_reason, tangent_height
+
+    R, r, h_e = 6378137.0, 6378137.0 + 500e3, 45e3
+    th_e = math.asin((R + h_e) / r)
+    psi = np.linspace(0.0, 2 * math.pi, 360, endpoint=False)
+    rays = np.column_stack([math.sin(th_e) * np.cos(psi), math.sin(th_e) * np.sin(psi), np.full(psi.size, math.cos(th_e))])
+    edge = EarthEdge(np.array([0.0, 0.0, 1.0]), rays, h_e, 22e3, r)
+    a = math.radians(0.27)
+
+    def body(theta_deg):
+        t = math.radians(theta_deg)
+        return np.array([math.sin(t), 0.0, math.cos(t)])
+
+    assert abs(tangent_height(r, h_e, th_e, th_e) - h_e) < 1e-6
+    assert abs(tangent_height(r, h_e, math.radians(68.29), th_e) - (r * math.sin(math.radians(68.29)) - R)) < 1e-3
+    assert occultation_reason(edge, body(69.5), a, 0.0, "Moon") == ""
+    assert occultation_reason(edge, body(69.0), a, 0.0, "Moon").startswith("reaches into the Earth's edge")
+    why = occultation_reason(edge, body(68.02), a, 0.0, "Moon")
+    assert why.startswith("below the Earth's brightness edge, seen through its air (its top at a tangent height of 12 km"), why
+    assert occultation_reason(edge, body(67.33), a, 0.0, "Moon").startswith("inside the Earth's disc, not the Moon")

@@ -141,16 +141,28 @@ class SideCheckOptions(_Checks):
     step_px : step [px] from the edge to the probed pixels (also the outer ring of the disc test).
     min_agree : fraction [0..1] of the probes that must be on their expected side.
     rays : edge pixels probed.
+    band_depth_deg : Earth, when the mirrored cone fits the arc as well (a short, nearly straight
+        arc): how far [deg] towards the nadir the Earth's side is followed (`vision.probes.
+        inward_kept`). A lit band of air over a dark (night or twilight) Earth is bright on one
+        side of its lower edge and dark on the other, like a day limb, with the nadir mirrored
+        into the sky; beyond the band the "Earth" falls back to the sky's darkness.
+    band_level : the sky's darkness for that test, as a fraction of the edge's threshold (a day
+        Earth, ocean included, stays above it in a frame exposed for the Earth).
+    band_min_kept : least fraction of the followed probes that stay above ``band_level``.
     """
 
     step_px: float = 3.0
     min_agree: float = 0.8
     rays: int = 24
+    band_depth_deg: float = 3.0
+    band_level: float = 0.25
+    band_min_kept: float = 0.5
 
     def __post_init__(self):
         self._ints(("rays",))
         self._finite(("step_px",), strict=True)
-        self._fractions(("min_agree",))
+        self._fractions(("min_agree", "band_level", "band_min_kept"))
+        self._within("band_depth_deg", 0.0, 30.0, "an angle in [0, 30] deg")
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["STANDARD_DENSITY", "REFRACTIVITY_GROUND", "EarthEdge", "refraction_bending", "edge_angle",
-           "clearance", "occultation_reason", "refraction_covariance"]
+           "clearance", "tangent_height", "occultation_reason", "refraction_covariance"]
 
 #: U.S. Standard Atmosphere 1976: geometric height [m], density [kg/m^3]
 STANDARD_DENSITY = np.array([
@@ -133,17 +133,35 @@ def clearance(edge: EarthEdge, b_c: np.ndarray, alpha_b: float) -> tuple[float, 
     return theta_b - alpha_b - theta_e, theta_e
 
 
+def tangent_height(r_m: float, h_e: float, theta: float, theta_e: float) -> float:
+    """Tangent height [m] of the ray at the angle ``theta`` [rad] from the nadir, seen from the
+    distance ``r_m`` from the Earth's centre, the edge at ``theta_e`` and the tangent height
+    ``h_e`` [m] (module docstring; beyond 90 deg the ray rises from the camera, which is then its
+    lowest point)."""
+    return h_e + r_m * (math.sin(min(theta, 0.5 * math.pi)) - math.sin(min(theta_e, 0.5 * math.pi)))
+
+
 def occultation_reason(edge: EarthEdge, b_c: np.ndarray, alpha_b: float, min_clearance: float, body: str) -> str:
     """"" or why the disc of centre ``b_c`` (unit, camera frame) and angular radius ``alpha_b``
     [rad] is not the ``body`` seen clear of the Earth: its clearance is below ``min_clearance``
-    [rad] (module docstring)."""
-    c, _ = clearance(edge, np.asarray(b_c, dtype=float), alpha_b)
+    [rad] (module docstring). Three cases: the disc reaches into the edge (its top above it);
+    the whole disc is below the brightness edge but its top ray passes above the ground (seen
+    through the air, bent by up to `refraction_bending` of its lowest visible ray, partly
+    hidden); the top ray meets the ground too (inside the Earth's disc: not the body)."""
+    b = np.asarray(b_c, dtype=float)
+    c, theta_e = clearance(edge, b, alpha_b)
     if c >= min_clearance:
         return ""
-    where = (f"inside the Earth's disc, not the {body} (it is never in front of the Earth)" if c + 2.0 * alpha_b < 0.0
-             else "reaches into the Earth's edge (partly hidden behind it, seen through its air)")
-    return f"{where}: its lowest point {math.degrees(-c):.2f} deg below the edge " \
-           f"(min_clearance_deg {math.degrees(min_clearance):g})"
+    below = f"its lowest point {math.degrees(-c):.2f} deg below the edge (min_clearance_deg {math.degrees(min_clearance):g})"
+    if c + 2.0 * alpha_b >= 0.0:
+        return f"reaches into the Earth's edge (partly hidden behind it, seen through its air): {below}"
+    h_e = edge.height_m if math.isfinite(edge.height_m) else 0.0
+    h_top = tangent_height(edge.r_m, h_e, theta_e + c + 2.0 * alpha_b, theta_e)
+    if h_top <= 0.0:
+        return f"inside the Earth's disc, not the {body} (it is never in front of the Earth): {below}"
+    bend = math.degrees(float(refraction_bending(tangent_height(edge.r_m, h_e, theta_e + c, theta_e))))
+    return (f"below the Earth's brightness edge, seen through its air (its top at a tangent height of "
+            f"{h_top / 1e3:.0f} km, bent by up to {bend:.2f} deg, partly hidden): {below}")
 
 
 def refraction_covariance(edge: EarthEdge, b_c: np.ndarray, rays: np.ndarray, edge_sigmas: float) -> np.ndarray:
@@ -158,8 +176,7 @@ def refraction_covariance(edge: EarthEdge, b_c: np.ndarray, rays: np.ndarray, ed
     h_e = edge.height_m if math.isfinite(edge.height_m) else 0.0
     if math.isfinite(edge.height_sigma_m):
         h_e -= edge_sigmas * edge.height_sigma_m
-    theta_low = min(max(theta_low, theta_e), 0.5 * math.pi)     # beyond 90 deg the ray rises from the camera
-    h_low = max(0.0, h_e) + edge.r_m * (math.sin(theta_low) - math.sin(min(theta_e, 0.5 * math.pi)))
+    h_low = tangent_height(edge.r_m, max(0.0, h_e), max(theta_low, theta_e), theta_e)
     u = e - (e @ b) * b                          # towards the Earth along the great circle through b
     n = float(np.linalg.norm(u))
     if n == 0.0:

@@ -15,7 +15,17 @@ from vision.fitting import subsample
 from vision.image_geometry import fast_pixel_angle, unit_circle
 from vision.nadir import norm3
 
-__all__ = ["side_score", "disc_check"]
+__all__ = ["side_score", "inward_kept", "disc_check"]
+
+
+def _edge_probes(image, camera, mask, rays_c, uv, e_c, step_px, n_probe):
+    """The kernels' inputs for ``n_probe`` edge rays spread along the edge: (frame (H, W, C), mask
+    or an empty one, rays (n, 3), unit e, the angle of ``step_px`` pixels at each ray)."""
+    sel = subsample(rays_c.shape[0], n_probe)
+    img = image if image.ndim == 3 else image[:, :, None]
+    m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
+    return (img, m, np.ascontiguousarray(rays_c[sel]), e_c / norm3(e_c),
+            step_px * fast_pixel_angle(camera, uv[sel]))
 
 
 def side_score(image, camera, mask, threshold, rays_c, uv, e_c, alpha_c_space, step_px, n_probe):
@@ -24,20 +34,23 @@ def side_score(image, camera, mask, threshold, rays_c, uv, e_c, alpha_c_space, s
     that the bright pixels are inside the cone (body) and the dark ones outside (space). Returns
     the agreeing fraction (NaN if no usable pixel). The per-probe work is one numba pass
     (`_side_kernel`: ~25 small numpy calls per candidate otherwise)."""
-    sel = subsample(rays_c.shape[0], n_probe)
-    rays_c, uv = rays_c[sel], uv[sel]
-    e = e_c / norm3(e_c)
-    pa = fast_pixel_angle(camera, uv)
-    img = image if image.ndim == 3 else image[:, :, None]
-    m = mask.mask if (mask is not None and mask.has_mask) else _NO_MASK
-    good, total = _side_kernel(img, m, float(threshold), np.ascontiguousarray(rays_c), e, step_px * pa,
-                               float(alpha_c_space), *camera.kernel_params())
+    img, m, rays, e, ang = _edge_probes(image, camera, mask, rays_c, uv, e_c, step_px, n_probe)
+    good, total = _side_kernel(img, m, float(threshold), rays, e, ang, float(alpha_c_space), *camera.kernel_params())
     return good / total if total else math.nan
 
 
+def inward_kept(image, camera, mask, level, rays_c, uv, e_c, depth_rad, step_px, n_probe):
+    """Fraction of ``n_probe`` edge rays whose path towards e, sampled every ``step_px`` pixels
+    from the second step out to ``depth_rad``, stays at or above the brightness ``level`` on
+    every sample inside the image (NaN when no path has a sample in the image beyond the first
+    step). Below it the path has left the body for the sky's darkness: the bright side of the
+    edge was a band, not the body's disc."""
+    img, m, rays, e, ang = _edge_probes(image, camera, mask, rays_c, uv, e_c, step_px, n_probe)
+    kept, usable = _inward_kernel(img, m, float(level), rays, e, ang, float(depth_rad), *camera.kernel_params())
+    return kept / usable if usable else math.nan
+
+
 _NO_MASK = np.zeros((0, 0), dtype=bool)
-
-
 
 
 @numba.njit(cache=True)
@@ -91,6 +104,42 @@ def _side_kernel(img, mask, threshold, rays, e, ang, alpha, model, prm):
                 good += 1
     return good, total
 
+
+
+@numba.njit(cache=True)
+def _inward_kernel(img, mask, level, rays, e, ang, depth, model, prm):
+    """Paths of `inward_kept`: each ray turned towards e (tangent ``t = e - (p.e) p``) by k ang_j,
+    k = 2, 3, ... while k ang_j <= depth, each sample projected and looked up
+    (`_probe_brightness`; outside the image or on the mask: skipped). Returns (paths whose every
+    sample is >= level, paths with a sample)."""
+    kept = 0
+    usable = 0
+    for j in range(rays.shape[0]):
+        px, py, pz = rays[j, 0], rays[j, 1], rays[j, 2]
+        d = px * e[0] + py * e[1] + pz * e[2]
+        tx, ty, tz = e[0] - d * px, e[1] - d * py, e[2] - d * pz
+        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+        if not (tn > 1e-9 and ang[j] > 0.0):
+            continue
+        n_seen = 0
+        dark = False
+        k = 2
+        while k * ang[j] <= depth:
+            ca, sa = math.cos(k * ang[j]), math.sin(k * ang[j])
+            u, v = project1(ca * px + sa * tx / tn, ca * py + sa * ty / tn, ca * pz + sa * tz / tn, model, prm)
+            b = _probe_brightness(img, mask, u, v)
+            k += 1
+            if b < 0.0:
+                continue
+            n_seen += 1
+            if b < level:
+                dark = True
+                break
+        if n_seen:
+            usable += 1
+            if not dark:
+                kept += 1
+    return kept, usable
 
 
 def disc_check(image, camera, mask, threshold, e_c, alpha, step_px, n: int = 16) -> str:

@@ -16,7 +16,7 @@ from vision.fitting import fit_cone, median, subsample, triple_radii
 from vision.image_geometry import conic_passes_image, fast_pixel_angle, max_pixel_angle
 from vision.nadir import ConeFit, angle_residuals, mirrored_direction, within_cone
 from vision.oblate import LimbModel
-from vision.probes import disc_check, side_score
+from vision.probes import disc_check, inward_kept, side_score
 from vision.ransac import ransac_cone
 from vision.results import CandidateResult
 
@@ -176,6 +176,28 @@ def _side_test(res: CandidateResult, fit: ConeFit, inl, H, rays_c, uv, alpha, im
     return fit, side
 
 
+def _band_reason(fit: ConeFit, inl, H, rays_c, uv, alpha, image, camera, mask, det, tc: TargetConfig,
+                 model: LimbModel) -> str:
+    """Earth: "" unless the mirrored cone fits the arc as well as the fit (residual within
+    ``max_residual``: a short, nearly straight arc, where only the brightness tells the sides
+    apart) and the Earth's side falls back to the sky's darkness within
+    ``side_check.band_depth_deg`` (`vision.probes.inward_kept`): then the bright side is a lit
+    band of air over a dark Earth, whose lower edge has the Earth's brightness on the wrong side."""
+    sc = tc.side_check
+    if not sc.band_depth_deg > 0.0:
+        return ""
+    alt = fit_cone(H[inl], alpha, mirrored_direction(fit.e_c, H[inl]))
+    if not alt.residual <= tc.max_residual:
+        return ""
+    kept = inward_kept(image, camera, mask, sc.band_level * det.threshold, rays_c[inl], uv[inl],
+                       model.to_camera(fit.e_c), math.radians(sc.band_depth_deg), sc.step_px, sc.rays)
+    if not kept < sc.band_min_kept:
+        return ""
+    return (f"a lit band over a dark Earth? {kept:.2f} of the paths towards the nadir stay above "
+            f"{sc.band_level:g} of the threshold for {sc.band_depth_deg:g} deg (< {sc.band_min_kept:g}), and "
+            f"the mirrored cone fits the arc as well (002 mirrored nadir)")
+
+
 def score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: TargetConfig,
                     model: LimbModel | None, frame_seed: int, predicted: np.ndarray | None = None) -> CandidateResult:
     """Fit and acceptance tests of candidate ``k`` (steps 2-3 of `vision.frontend`'s pipeline) on
@@ -218,6 +240,10 @@ def score_candidate(k: int, cand: Candidate, image, camera, mask, det, tc: Targe
         res.reason = (f"wrong side (002 mirrored nadir): {side:.2f} of the pixels beside the edge "
                       f"agree < {tc.side_check.min_agree:g}")
         return res
+    if model is not None:
+        res.reason = _band_reason(fit, inl, H, rays_c, uv, alpha, image, camera, mask, det, tc, model)
+        if res.reason:
+            return res
     if model is not None and predicted is not None:
         # Earth gate: the geocentric nadir predicted by the prior (x_e, R_ec); a glare or cloud
         # edge that happens to fit a cone of the right radius points elsewhere
