@@ -217,3 +217,32 @@ def test_reasons_follow_the_tangent_height():
     why = occultation_reason(edge, body(68.02), a, 0.0, "Moon")
     assert why.startswith("below the Earth's brightness edge, seen through its air (its top at a tangent height of 12 km"), why
     assert occultation_reason(edge, body(67.33), a, 0.0, "Moon").startswith("inside the Earth's disc, not the Moon")
+
+
+def test_a_glint_does_not_hide_the_sun_elsewhere():
+    """The glint of the test above and a Sun-sized disc in the sky of the same view, drawn 4 %
+    wider than high (the glint, a round disc, fits the cone better and wins when the candidates are
+    not checked against the Earth before the winner is chosen; the frame then had no Sun): the
+    Sun's candidates are checked before the winner, and the disc in the sky is the Sun, within a
+    pixel of where it was drawn."""
+    R_ec, x = orbit_poses(1)[0]
+    sun, moon = ephemeris.sun_position_e(T0_ORBIT_NS), ephemeris.moon_position_e(T0_ORBIT_NS)
+    fr = render.render_frame(CAM, R_ec, x, sun, moon, seed=0,
+                             options=render.RenderOptions(payload_mask=None, payload_reflections=False))
+    r_px = int(round(math.radians(0.4) * CAM.fx))
+    img = fr.image.copy()
+    spots = []
+    for cls in (1, 0):                                  # Earth, then sky
+        deep = cv2.distanceTransform((fr.pixel_class == cls).astype(np.uint8), cv2.DIST_L2, 5) > 60
+        vv, uu = np.nonzero(deep)
+        k = int(np.argmin(np.hypot(uu - CAM.cx, vv - CAM.cy)))
+        spots.append((int(uu[k]), int(vv[k])))
+    cv2.circle(img, spots[0], r_px, (255, 255, 255), -1, cv2.LINE_AA)
+    cv2.ellipse(img, spots[1], (int(round(1.04 * r_px)), r_px), 0.0, 0.0, 360.0, (255, 255, 255), -1, cv2.LINE_AA)
+    img = decode_frame(render.encode_jpeg(img, 90))
+    lat, _, h = earth.ecef_to_geodetic(x)
+    res = process_frame(img, CAM, load_vision_config(camera=CAM), height_m=float(h), prior=FramePrior(lat=float(lat)))
+    rec = res.record("sun")
+    assert rec is not None, res.reasons
+    uv = project(CAM, rec.e_c[None])[0]
+    assert np.hypot(uv[0] - spots[1][0], uv[1] - spots[1][1]) < 1.0, (uv, spots)

@@ -344,9 +344,12 @@ def _baseline_fit(out: TargetResult, camera, cand, timings, name):
 
 
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_seed: int, timings,
-                    baseline: bool, predicted: np.ndarray | None, limb, hists: dict, ids) -> TargetResult:
+                    baseline: bool, predicted: np.ndarray | None, limb, hists: dict, ids,
+                    earth_edge: EarthEdge | None = None) -> TargetResult:
     """Steps 1-4 of the module docstring for one target (``model``: the Earth's limb model, None
-    for the Sun/Moon); ``ids`` = (t_ns, camera_id) of the record."""
+    for the Sun/Moon); ``ids`` = (t_ns, camera_id) of the record; ``earth_edge``: the frame's
+    Earth for the Sun, whose accepted candidates must be clear of it before the winner is chosen
+    (a glint on the sea does not hide the Sun elsewhere in the frame)."""
     t0 = time.perf_counter()
     det = _detect(name, image, camera, mask, tc, predicted, hists)
     t1 = time.perf_counter()
@@ -359,6 +362,11 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     t2 = time.perf_counter()
     timings[f"{name}.score"] = t2 - t1
     good = [r for r in results if not r.reason]
+    if earth_edge is not None:
+        for r in good:
+            r.reason = occultation_reason(earth_edge, r.fit.e_c, SUN_ALPHA,
+                                          math.radians(tc.occultation.min_clearance_deg), "Sun")
+        good = [r for r in good if not r.reason]
     if not good:
         best = min(results, key=lambda r: r.residual)
         out.reason = (f"no accepted candidate among {len(det.candidates)} "
@@ -527,9 +535,18 @@ def _limb_prior(config: VisionConfig, prior: FramePrior | None, image):
 SUN_ALPHA = math.asin(SUN_RADIUS / AU)
 
 
-def _inlier_rays(tr: TargetResult, camera: Camera) -> np.ndarray:
-    """Unit camera rays (n, 3) of a target's final inlier pixels."""
-    rays = unproject(camera, np.asarray(tr.points, dtype=float)[np.asarray(tr.inlier_mask, dtype=bool)])
+#: most edge rays `vision.occultation` takes of the Earth (spread along it; the edge angle is a
+#: median over the 16 nearest the body's azimuth)
+EDGE_RAYS = 512
+
+
+def _inlier_rays(tr: TargetResult, camera: Camera, most: int | None = None) -> np.ndarray:
+    """Unit camera rays (n, 3) of a target's final inlier pixels (at most ``most``, spread
+    along the edge)."""
+    uv = np.asarray(tr.points, dtype=float)[np.asarray(tr.inlier_mask, dtype=bool)]
+    if most is not None:
+        uv = uv[subsample(uv.shape[0], most)]
+    rays = unproject(camera, uv)
     return rays[np.isfinite(rays).all(axis=1)]
 
 
@@ -539,7 +556,7 @@ def _earth_edge(targets: dict, camera: Camera, prior: FramePrior | None, height_
     if tr is None or tr.record is None or tr.points is None:
         return None
     rec = tr.record
-    rays = _inlier_rays(tr, camera)
+    rays = _inlier_rays(tr, camera, EDGE_RAYS)
     if prior is not None and prior.x_e is not None:
         r = float(np.linalg.norm(prior.x_e))
     else:
@@ -549,12 +566,10 @@ def _earth_edge(targets: dict, camera: Camera, prior: FramePrior | None, height_
     return EarthEdge(rec.e_c, rays, rec.edge_height_m, rec.edge_height_sigma_m, r)
 
 
-def _sun_beside_earth(tr: TargetResult, camera: Camera, tc: TargetConfig, edge: EarthEdge | None) -> None:
+def _sun_beside_earth(tr: TargetResult, camera: Camera, tc: TargetConfig, edge: EarthEdge) -> None:
     """The Sun's record against the frame's Earth (`vision.occultation`): dropped with the reason
     when its disc is not clear of the Earth's edge, else its covariance with the refraction
     term. The Sun's own radius is the ephemeris's mean (the fitted one includes the bloom)."""
-    if edge is None:
-        return
     rec = tr.record
     why = occultation_reason(edge, rec.e_c, SUN_ALPHA, math.radians(tc.occultation.min_clearance_deg), "Sun")
     if why:
@@ -639,11 +654,13 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
             if tr.record is None:
                 reasons[name] = tr.reason
             continue
+        edge = (_earth_edge(targets, camera, prior, height_m, model)
+                if name == "sun" and tc.occultation.enabled else None)
         tr = _process_target(name, image, camera, mask, tc, model if is_earth else None, frame_seed, timings,
                              baseline and is_earth, _predicted(name, prior), limb if is_earth else None, hists,
-                             (t_ns, camera_id))
-        if name == "sun" and tr.record is not None and tc.occultation.enabled:
-            _sun_beside_earth(tr, camera, tc, _earth_edge(targets, camera, prior, height_m, model))
+                             (t_ns, camera_id), edge)
+        if edge is not None and tr.record is not None:
+            _sun_beside_earth(tr, camera, tc, edge)
         targets[name] = tr
         if tr.record is None:
             reasons[name] = tr.reason
