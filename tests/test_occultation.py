@@ -202,7 +202,8 @@ def test_reasons_follow_the_tangent_height():
     R, r, h_e = 6378137.0, 6378137.0 + 500e3, 45e3
     th_e = math.asin((R + h_e) / r)
     psi = np.linspace(0.0, 2 * math.pi, 360, endpoint=False)
-    rays = np.column_stack([math.sin(th_e) * np.cos(psi), math.sin(th_e) * np.sin(psi), np.full(psi.size, math.cos(th_e))])
+    rays = np.column_stack([math.sin(th_e) * np.cos(psi), math.sin(th_e) * np.sin(psi),
+                            np.full(psi.size, math.cos(th_e))])
     edge = EarthEdge(np.array([0.0, 0.0, 1.0]), rays, h_e, 22e3, r)
     a = math.radians(0.27)
 

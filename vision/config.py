@@ -35,7 +35,8 @@ from vision.borders import SearchConfig, search_line_spacing
 from vision.candidates import DetectionConfig
 
 __all__ = ["TARGETS", "ScoringOptions", "RansacOptions", "SideCheckOptions", "FitOptions", "FlankOptions",
-           "CalibrationOptions", "LimbOptions", "PhaseOptions", "EdgeHeightOptions", "OccultationOptions", "TargetConfig", "VisionConfig",
+           "CalibrationOptions", "LimbOptions", "PhaseOptions", "EdgeHeightOptions", "OccultationOptions",
+           "TargetConfig", "VisionConfig",
            "FramePrior",
            "default_config", "resolve_search_lines"]
 

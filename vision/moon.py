@@ -42,7 +42,8 @@ Steps (`process_moon`)
    about as bright inside all round (a nearly full Moon), s_t is the mean radial direction of
    the RANSAC inliers, the middle of the lit limb (when they lie all round, s_t points away from
    those inside the cone by a pixel or more: its terminator), and a fit facing away from the
-   bright side is refused. Points within
+   bright side is refused. Points within ``limb_margin_deg`` of perpendicular (the cusps) are
+   dropped.
 4. Fit (`fit_lit_limb`): the constrained fit of 003 eq. (24) with alpha known (less the edge
    offset): the prior's apparent radius (the ephemeris distance), else the mean radius
    ``radius_deg`` with its uncertainty ``radius_sigma`` in the covariance; or, with
@@ -81,8 +82,8 @@ from vision.results import CandidateResult, TargetResult, VectorRecord
 from vision.scoring import candidate_rng, gate_reason
 
 __all__ = ["expected_alpha", "seed_threshold", "moon_detection", "outward_normals", "size_gate", "trace_candidate",
-           "sun_image_direction", "lit_side", "inner_brightness", "lit_direction", "lit_limb_starts", "fit_lit_limb", "moon_covariance",
-           "process_moon"]
+           "sun_image_direction", "lit_side", "inner_brightness", "lit_direction", "lit_limb_starts", "fit_lit_limb",
+           "moon_covariance", "process_moon"]
 
 
 def expected_alpha(tc: TargetConfig, prior: FramePrior | None) -> tuple[float, float, bool]:

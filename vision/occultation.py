@@ -36,20 +36,20 @@ a spherically layered exponential atmosphere at the height h is bent by
 
     delta(h) = (n(h) - 1) sqrt(2 pi R / H(h))                                     (1)
 
-(the leading term of the bending integral of a spherically symmetric refractivity that decays
-with the scale height H over a sphere of radius R, as radio occultation uses it; Fjeldbo, Kliore
-& Eshleman 1971, Astron. J. 76, 123), with ``n - 1`` the refractivity of air at the ground,
-2.77e-4 (visible light, 15 C, 1013.25 hPa), scaled by the density of the U.S. Standard
-Atmosphere 1976 (`STANDARD_DENSITY`) and H its local density scale height. It gives 1.01 deg at
-the ground, 0.42 deg at 10 km, 0.019 deg at 30 km and 0.004 deg at 40 km; the quadrature of the
-bending integral over the same air gives 1.12 deg at the ground (twice the astronomical
-refraction at the horizon, 2 x 34.5' = 1.15 deg), 9 % more than (1) there, and agrees with (1)
-within 5 % from 10 km up (`tests/test_occultation.py`). The light is bent towards the Earth, so the image of the disc is lifted away
-from it, each ray by the bending at its own tangent height: a circle fitted to those rays moves
-away from the Earth by at most ``delta(h_low)``. The direction is not corrected (the
+(the leading term of the bending integral of a spherically symmetric refractivity that decays with
+the scale height H over a sphere of radius R, as radio occultation uses it; Fjeldbo, Kliore &
+Eshleman 1971, Astron. J. 76, 123), with ``n - 1`` the refractivity of air at the ground, 2.77e-4
+(visible light, 15 C, 1013.25 hPa), scaled by the density of the U.S. Standard Atmosphere 1976
+(`STANDARD_DENSITY`) and H its local density scale height. It gives 1.01 deg at the ground, 0.42
+deg at 10 km, 0.019 deg at 30 km and 0.004 deg at 40 km; the quadrature of the bending integral
+over the same air gives 1.12 deg at the ground (twice the astronomical refraction at the horizon,
+2 x 34.5' = 1.15 deg), 9 % more than (1) there, and agrees with (1) within 5 % from 10 km up
+(`tests/test_occultation.py`). The light is bent towards the Earth, so the image of the disc is
+lifted away from it, each ray by the bending at its own tangent height: a circle fitted to those
+rays moves away from the Earth by at most ``delta(h_low)``. The direction is not corrected (the
 edge's true height and the air's state are not known well enough); the covariance gains
-``(delta(h_low) / 2)^2`` along the great circle through e and b, so that its 3 sigma covers
-1.5 times the largest shift.
+``(delta(h_low) / 2)^2`` along the great circle through e and b, so that its 3 sigma covers 1.5
+times the largest shift.
 """
 from __future__ import annotations
 
@@ -152,7 +152,8 @@ def occultation_reason(edge: EarthEdge, b_c: np.ndarray, alpha_b: float, min_cle
     c, theta_e = clearance(edge, b, alpha_b)
     if c >= min_clearance:
         return ""
-    below = f"its lowest point {math.degrees(-c):.2f} deg below the edge (min_clearance_deg {math.degrees(min_clearance):g})"
+    below = (f"its lowest point {math.degrees(-c):.2f} deg below the edge "
+             f"(min_clearance_deg {math.degrees(min_clearance):g})")
     if c + 2.0 * alpha_b >= 0.0:
         return f"reaches into the Earth's edge (partly hidden behind it, seen through its air): {below}"
     h_e = edge.height_m if math.isfinite(edge.height_m) else 0.0
