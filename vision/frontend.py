@@ -76,7 +76,7 @@ from vision.limb_refit import limb_refit, tilt_corrected_attitude
 from vision.mask import PayloadMask
 from vision.nadir import angle_residuals, conic_type, direction_and_radius, within_cone
 from vision.oblate import ellipsoid_model, sphere_model
-from vision.occultation import EarthEdge, occultation_reason, refraction_covariance
+from vision.occultation import REFRACTION_CEILING_M, EarthEdge, occultation_reason, refraction_covariance, tangent_height
 from vision.results import CandidateResult, FrameResult, TargetResult, VectorRecord
 from vision.scoring import gate_reason, score_candidate
 
@@ -345,11 +345,11 @@ def _baseline_fit(out: TargetResult, camera, cand, timings, name):
 
 def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_seed: int, timings,
                     baseline: bool, predicted: np.ndarray | None, limb, hists: dict, ids,
-                    earth_edge: EarthEdge | None = None) -> TargetResult:
+                    earth: _EarthBeside | None = None) -> TargetResult:
     """Steps 1-4 of the module docstring for one target (``model``: the Earth's limb model, None
-    for the Sun/Moon); ``ids`` = (t_ns, camera_id) of the record; ``earth_edge``: the frame's
-    Earth for the Sun, whose accepted candidates must be clear of it before the winner is chosen
-    (a glint on the sea does not hide the Sun elsewhere in the frame)."""
+    for the Sun/Moon); ``ids`` = (t_ns, camera_id) of the record; ``earth``: the frame's Earth
+    for the Sun, whose accepted candidates must be clear of it before the winner is chosen (a
+    glint on the sea does not hide the Sun elsewhere in the frame)."""
     t0 = time.perf_counter()
     det = _detect(name, image, camera, mask, tc, predicted, hists)
     t1 = time.perf_counter()
@@ -362,10 +362,9 @@ def _process_target(name, image, camera, mask, tc: TargetConfig, model, frame_se
     t2 = time.perf_counter()
     timings[f"{name}.score"] = t2 - t1
     good = [r for r in results if not r.reason]
-    if earth_edge is not None:
+    if earth is not None:
         for r in good:
-            r.reason = occultation_reason(earth_edge, r.fit.e_c, SUN_ALPHA,
-                                          math.radians(tc.occultation.min_clearance_deg), "Sun")
+            r.reason = _sun_reason(earth, r.fit.e_c, tc)
         good = [r for r in good if not r.reason]
     if not good:
         best = min(results, key=lambda r: r.residual)
@@ -550,32 +549,65 @@ def _inlier_rays(tr: TargetResult, camera: Camera, most: int | None = None) -> n
     return rays[np.isfinite(rays).all(axis=1)]
 
 
-def _earth_edge(targets: dict, camera: Camera, prior: FramePrior | None, height_m, model) -> EarthEdge | None:
-    """The frame's Earth as `vision.occultation` needs it, or None without an Earth vector."""
+class _EarthBeside:
+    """The frame's Earth for the Sun's checks against it (`vision.occultation`): the edge's rays
+    are unprojected (`EarthEdge`) only for a disc that comes near the edge (`far`)."""
+
+    def __init__(self, tr: TargetResult, camera: Camera, prior: FramePrior | None, height_m, model):
+        self.tr, self.camera = tr, camera
+        if prior is not None and prior.x_e is not None:
+            self.r = float(np.linalg.norm(prior.x_e))
+        else:
+            self.r = model.radius + float(height_m)
+        self._edge = None
+
+    def far(self, b_c: np.ndarray, alpha_b: float) -> bool:
+        """Whether the disc of centre ``b_c`` and radius ``alpha_b`` [rad] stands so far above the
+        edge that it cannot touch it and no air bends its light: its lowest point more than a
+        degree beyond the Earth's cone (`TargetResult.cone_alpha`) and at a tangent height above
+        `REFRACTION_CEILING_M` even over an edge at the ground."""
+        a = self.tr.cone_alpha
+        theta = float(np.arccos(np.clip(np.asarray(b_c) @ self.tr.record.e_c, -1.0, 1.0))) - alpha_b
+        return (math.isfinite(a) and theta > a + math.radians(1.0)
+                and tangent_height(self.r, 0.0, theta, a) > REFRACTION_CEILING_M)
+
+    @property
+    def edge(self) -> EarthEdge:
+        if self._edge is None:
+            rec = self.tr.record
+            self._edge = EarthEdge(rec.e_c, _inlier_rays(self.tr, self.camera, EDGE_RAYS), rec.edge_height_m,
+                                   rec.edge_height_sigma_m, self.r)
+        return self._edge
+
+
+def _earth_beside(targets: dict, camera: Camera, prior: FramePrior | None, height_m, model) -> _EarthBeside | None:
+    """The frame's Earth for `vision.occultation`, or None without an Earth vector."""
     tr = targets.get("earth")
-    if tr is None or tr.record is None or tr.points is None:
+    if tr is None or tr.record is None or tr.points is None or not np.any(tr.inlier_mask):
         return None
-    rec = tr.record
-    rays = _inlier_rays(tr, camera, EDGE_RAYS)
-    if prior is not None and prior.x_e is not None:
-        r = float(np.linalg.norm(prior.x_e))
-    else:
-        r = model.radius + float(height_m)
-    if rays.shape[0] == 0:
-        return None
-    return EarthEdge(rec.e_c, rays, rec.edge_height_m, rec.edge_height_sigma_m, r)
+    return _EarthBeside(tr, camera, prior, height_m, model)
 
 
-def _sun_beside_earth(tr: TargetResult, camera: Camera, tc: TargetConfig, edge: EarthEdge) -> None:
+def _sun_reason(earth: _EarthBeside, b_c: np.ndarray, tc: TargetConfig) -> str:
+    """`vision.occultation.occultation_reason` of a Sun disc at ``b_c`` ("" when far above)."""
+    if earth.far(b_c, SUN_ALPHA):
+        return ""
+    return occultation_reason(earth.edge, b_c, SUN_ALPHA, math.radians(tc.occultation.min_clearance_deg), "Sun")
+
+
+def _sun_beside_earth(tr: TargetResult, camera: Camera, tc: TargetConfig, earth: _EarthBeside) -> None:
     """The Sun's record against the frame's Earth (`vision.occultation`): dropped with the reason
     when its disc is not clear of the Earth's edge, else its covariance with the refraction
-    term. The Sun's own radius is the ephemeris's mean (the fitted one includes the bloom)."""
+    term (none far above the edge, where it is below 0.0003 deg). The Sun's own radius is the
+    ephemeris's mean (the fitted one includes the bloom)."""
     rec = tr.record
-    why = occultation_reason(edge, rec.e_c, SUN_ALPHA, math.radians(tc.occultation.min_clearance_deg), "Sun")
+    why = _sun_reason(earth, rec.e_c, tc)
     if why:
         tr.record, tr.reason = None, why
         return
-    P = rec.P_c + refraction_covariance(edge, rec.e_c, _inlier_rays(tr, camera), tc.occultation.edge_sigmas)
+    if earth.far(rec.e_c, rec.alpha):
+        return
+    P = rec.P_c + refraction_covariance(earth.edge, rec.e_c, _inlier_rays(tr, camera), tc.occultation.edge_sigmas)
     tr.record = dataclasses.replace(rec, P_c=P, P_overbound=float(largest_eigenvalue(P)) * np.eye(3))
 
 
@@ -648,19 +680,20 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
             sun = targets.get("sun")
             sun_c = prior.sun_c if prior is not None and prior.sun_c is not None else (
                 sun.record.e_c if sun is not None and sun.record is not None else None)
+            earth = _earth_beside(targets, camera, prior, height_m, model)
             tr = process_moon(image, camera, mask, tc, prior, _predicted(name, prior), sun_c, frame_seed, timings,
-                              hists, (t_ns, camera_id), _earth_edge(targets, camera, prior, height_m, model))
+                              hists, (t_ns, camera_id), earth.edge if earth is not None else None)
             targets[name] = tr
             if tr.record is None:
                 reasons[name] = tr.reason
             continue
-        edge = (_earth_edge(targets, camera, prior, height_m, model)
-                if name == "sun" and tc.occultation.enabled else None)
+        earth = (_earth_beside(targets, camera, prior, height_m, model)
+                 if name == "sun" and tc.occultation.enabled else None)
         tr = _process_target(name, image, camera, mask, tc, model if is_earth else None, frame_seed, timings,
                              baseline and is_earth, _predicted(name, prior), limb if is_earth else None, hists,
-                             (t_ns, camera_id), edge)
-        if edge is not None and tr.record is not None:
-            _sun_beside_earth(tr, camera, tc, edge)
+                             (t_ns, camera_id), earth)
+        if earth is not None and tr.record is not None:
+            _sun_beside_earth(tr, camera, tc, earth)
         targets[name] = tr
         if tr.record is None:
             reasons[name] = tr.reason

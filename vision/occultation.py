@@ -54,11 +54,11 @@ times the largest shift.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["STANDARD_DENSITY", "REFRACTIVITY_GROUND", "EarthEdge", "refraction_bending", "edge_angle",
+__all__ = ["STANDARD_DENSITY", "REFRACTIVITY_GROUND", "REFRACTION_CEILING_M", "EarthEdge", "refraction_bending", "edge_angle",
            "clearance", "tangent_height", "occultation_reason", "refraction_covariance"]
 
 #: U.S. Standard Atmosphere 1976: geometric height [m], density [kg/m^3]
@@ -67,6 +67,9 @@ STANDARD_DENSITY = np.array([
     [25e3, 4.0084e-2], [30e3, 1.8410e-2], [35e3, 8.4634e-3], [40e3, 3.9957e-3], [45e3, 1.9663e-3],
     [50e3, 1.0269e-3], [60e3, 3.0968e-4], [70e3, 8.2829e-5], [80e3, 1.8458e-5], [90e3, 3.416e-6],
     [100e3, 5.604e-7]])
+_LN_DENSITY = np.log(STANDARD_DENSITY[:, 1])
+#: tangent height [m] above which the bending is negligible (5e-6 rad, 0.0003 deg, at 60 km)
+REFRACTION_CEILING_M = 60e3
 #: refractivity n - 1 of air at the ground (visible light, 15 C, 1013.25 hPa)
 REFRACTIVITY_GROUND = 2.77e-4
 _R_EARTH = 6371e3
@@ -83,7 +86,7 @@ def refraction_bending(h_m) -> np.ndarray:
     1.01
     """
     h = np.clip(np.asarray(h_m, dtype=float), 0.0, None)
-    z, rho = STANDARD_DENSITY[:, 0], np.log(STANDARD_DENSITY[:, 1])
+    z, rho = STANDARD_DENSITY[:, 0], _LN_DENSITY
     i = np.clip(np.searchsorted(z, h, side="right") - 1, 0, z.size - 2)
     slope = (rho[i + 1] - rho[i]) / (z[i + 1] - z[i])        # -1 / H of the layer
     ln_rho = rho[i] + slope * (h - z[i])
@@ -98,6 +101,9 @@ class EarthEdge:
     rays : (n, 3) unit rays of the edge's inlier pixels, camera frame.
     height_m, height_sigma_m : the edge's tangent height and its 1-sigma [m] (the record's).
     r_m : the observer's distance from the Earth's centre [m].
+
+    The rays' angles from e_c and their azimuths about it (in a tangent basis of e_c) are
+    computed once, on construction; `edge_angle` then costs one azimuth and a partial sort.
     """
 
     e_c: np.ndarray
@@ -105,24 +111,32 @@ class EarthEdge:
     height_m: float
     height_sigma_m: float
     r_m: float
+    basis: np.ndarray = field(init=False, repr=False)
+    theta: np.ndarray = field(init=False, repr=False)
+    azimuth: np.ndarray = field(init=False, repr=False)
 
-
-def _azimuths(e: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Azimuths [rad] of the directions ``v`` (n, 3) about the unit vector ``e``."""
-    u = np.cross(e, [1.0, 0.0, 0.0] if abs(e[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = np.cross(e, u)
-    return np.arctan2(v @ w, v @ u)
+    def __post_init__(self):
+        e = np.asarray(self.e_c, dtype=float)
+        a = np.array([1.0, 0.0, 0.0]) if abs(e[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = a - (a @ e) * e
+        u /= math.sqrt(float(u @ u))
+        w = np.array([e[1] * u[2] - e[2] * u[1], e[2] * u[0] - e[0] * u[2], e[0] * u[1] - e[1] * u[0]])
+        rays = np.asarray(self.rays, dtype=float)
+        object.__setattr__(self, "basis", np.stack([u, w]))
+        object.__setattr__(self, "theta", np.arccos(np.clip(rays @ e, -1.0, 1.0)))
+        object.__setattr__(self, "azimuth", np.arctan2(rays @ w, rays @ u))
 
 
 def edge_angle(edge: EarthEdge, b_c: np.ndarray, n_near: int = 16) -> float:
     """Angle [rad] of the Earth's edge from ``edge.e_c`` at the azimuth of the direction ``b_c``:
-    the median over the ``n_near`` edge rays nearest that azimuth."""
-    e = edge.e_c
-    theta = np.arccos(np.clip(edge.rays @ e, -1.0, 1.0))
-    d = np.angle(np.exp(1j * (_azimuths(e, edge.rays) - _azimuths(e, b_c[None, :])[0])))
-    near = np.argsort(np.abs(d))[:n_near]
-    return float(np.median(theta[near]))
+    the median over the ``n_near`` edge rays nearest that azimuth (NaN without rays)."""
+    if edge.azimuth.size == 0:
+        return math.nan
+    x, y = edge.basis @ np.asarray(b_c, dtype=float)
+    d = np.abs((edge.azimuth - math.atan2(y, x) + math.pi) % (2.0 * math.pi) - math.pi)
+    k = min(n_near, d.size)
+    near = np.argpartition(d, k - 1)[:k] if k < d.size else slice(None)
+    return float(np.median(edge.theta[near]))
 
 
 def clearance(edge: EarthEdge, b_c: np.ndarray, alpha_b: float) -> tuple[float, float]:
@@ -150,7 +164,7 @@ def occultation_reason(edge: EarthEdge, b_c: np.ndarray, alpha_b: float, min_cle
     hidden); the top ray meets the ground too (inside the Earth's disc: not the body)."""
     b = np.asarray(b_c, dtype=float)
     c, theta_e = clearance(edge, b, alpha_b)
-    if c >= min_clearance:
+    if c >= min_clearance or not math.isfinite(c):          # no edge ray: nothing to test against
         return ""
     below = (f"its lowest point {math.degrees(-c):.2f} deg below the edge "
              f"(min_clearance_deg {math.degrees(min_clearance):g})")
@@ -173,6 +187,8 @@ def refraction_covariance(edge: EarthEdge, b_c: np.ndarray, rays: np.ndarray, ed
     b = np.asarray(b_c, dtype=float)
     e = edge.e_c
     theta_e = edge_angle(edge, b)
+    if not math.isfinite(theta_e) or len(rays) == 0:
+        return np.zeros((3, 3))
     theta_low = float(np.min(np.arccos(np.clip(np.asarray(rays, dtype=float) @ e, -1.0, 1.0))))
     h_e = edge.height_m if math.isfinite(edge.height_m) else 0.0
     if math.isfinite(edge.height_sigma_m):
