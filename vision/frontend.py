@@ -580,10 +580,9 @@ class _EarthBeside:
         return self._edge
 
 
-def _earth_beside(targets: dict, camera: Camera, prior: FramePrior | None, height_m, model) -> _EarthBeside | None:
-    """The frame's Earth for `vision.occultation`, or None without an Earth vector."""
-    tr = targets.get("earth")
-    if tr is None or tr.record is None or tr.points is None or not np.any(tr.inlier_mask):
+def _earth_beside(tr: TargetResult, camera: Camera, prior: FramePrior | None, height_m, model) -> _EarthBeside | None:
+    """The Earth's result ``tr`` for `vision.occultation`, or None without an Earth vector."""
+    if tr.record is None or tr.points is None or not np.any(tr.inlier_mask):
         return None
     return _EarthBeside(tr, camera, prior, height_m, model)
 
@@ -670,6 +669,7 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
     model = _earth_model(config, prior, height_m) if config.earth.enabled else None
     limb = _limb_prior(config, prior, image)
     hists: dict = {}
+    earth = None          # the frame's Earth for the Sun's and the Moon's checks (`vision.occultation`)
     for name in TARGETS:
         tc = config.target(name)
         if not tc.enabled:
@@ -680,21 +680,22 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
             sun = targets.get("sun")
             sun_c = prior.sun_c if prior is not None and prior.sun_c is not None else (
                 sun.record.e_c if sun is not None and sun.record is not None else None)
-            earth = _earth_beside(targets, camera, prior, height_m, model)
             tr = process_moon(image, camera, mask, tc, prior, _predicted(name, prior), sun_c, frame_seed, timings,
-                              hists, (t_ns, camera_id), earth.edge if earth is not None else None)
+                              hists, (t_ns, camera_id),
+                              earth.edge if earth is not None and tc.occultation.enabled else None)
             targets[name] = tr
             if tr.record is None:
                 reasons[name] = tr.reason
             continue
-        earth = (_earth_beside(targets, camera, prior, height_m, model)
-                 if name == "sun" and tc.occultation.enabled else None)
+        beside = earth if name == "sun" and tc.occultation.enabled else None
         tr = _process_target(name, image, camera, mask, tc, model if is_earth else None, frame_seed, timings,
                              baseline and is_earth, _predicted(name, prior), limb if is_earth else None, hists,
-                             (t_ns, camera_id), earth)
-        if earth is not None and tr.record is not None:
-            _sun_beside_earth(tr, camera, tc, earth)
+                             (t_ns, camera_id), beside)
+        if beside is not None and tr.record is not None:
+            _sun_beside_earth(tr, camera, tc, beside)
         targets[name] = tr
+        if is_earth:
+            earth = _earth_beside(tr, camera, prior, height_m, model)
         if tr.record is None:
             reasons[name] = tr.reason
     records = [tr.record for tr in targets.values() if tr.record is not None]

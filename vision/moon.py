@@ -208,15 +208,31 @@ def lit_side(H: np.ndarray, e: np.ndarray, s: np.ndarray | None, margin: float) 
     return c > math.sin(margin)
 
 
+def _radial(H: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Unit directions (m, 3) of the rays ``H`` about ``e`` in the tangent plane at e."""
+    tp = H - np.outer(H @ e, e)
+    return tp / np.linalg.norm(tp, axis=1)[:, None]
+
+
+def _brightness_at(a: np.ndarray, uv: np.ndarray, mask=None) -> np.ndarray:
+    """Mean-channel brightness (m,) of the frame ``a`` at the nearest pixels of ``uv`` (m, 2);
+    NaN outside the frame or on the payload ``mask``."""
+    iu, iv = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+    idx = np.flatnonzero(np.isfinite(iu) & np.isfinite(iv) & (iu >= 0) & (iv >= 0)
+                         & (iu < a.shape[1]) & (iv < a.shape[0]))
+    iu, iv = iu[idx].astype(np.int64), iv[idx].astype(np.int64)
+    if mask is not None and mask.has_mask:
+        keep = ~mask.mask[iv, iu]
+        idx, iu, iv = idx[keep], iu[keep], iv[keep]
+    b = np.full(uv.shape[0], np.nan)
+    b[idx] = a[iv, iu].reshape(iu.size, -1).mean(axis=1)
+    return b
+
+
 def inner_brightness(a: np.ndarray, edge: Candidate, step_px: float) -> np.ndarray:
     """Brightness (m,) of the frame ``a`` (H, W, C) ``step_px`` pixels inside each edge point,
     along its inward normal (`outward_normals`), at the nearest pixel (NaN outside the frame)."""
-    p = edge.points - step_px * outward_normals(edge.points, edge.closed)
-    iu, iv = np.rint(p[:, 0]), np.rint(p[:, 1])
-    ok = (iu >= 0) & (iv >= 0) & (iu < a.shape[1]) & (iv < a.shape[0])
-    b = np.full(p.shape[0], np.nan)
-    b[ok] = a[iv[ok].astype(np.int64), iu[ok].astype(np.int64)].reshape(int(ok.sum()), -1).mean(axis=1)
-    return b
+    return _brightness_at(a, edge.points - step_px * outward_normals(edge.points, edge.closed))
 
 
 def lit_direction(H: np.ndarray, e: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -230,8 +246,7 @@ def lit_direction(H: np.ndarray, e: np.ndarray, b: np.ndarray) -> tuple[np.ndarr
     about e, points to the lit side. Strength ``|v| / sum |w|``: 0 for a disc of even
     brightness all round (a full Moon), 1 when the bright and dark halves face each other."""
     ok = np.isfinite(b)
-    tp = H[ok] - np.outer(H[ok] @ e, e)
-    tp /= np.linalg.norm(tp, axis=1)[:, None]
+    tp = _radial(H[ok], e)
     w = b[ok] - b[ok].mean()
     v = w @ tp
     n, den = float(np.linalg.norm(v)), float(np.abs(w).sum())
@@ -272,8 +287,7 @@ def lit_limb_starts(edge: Candidate, H, thr, alpha_fit, sun_c, e0, camera, tc: T
         starts.append((outward_normals(edge.points, edge.closed) @ d_img > 0.0, d, None))
     else:
         d = None
-    tp = H - np.outer(H @ e, e)
-    tp /= np.linalg.norm(tp, axis=1)[:, None]
+    tp = _radial(H, e)
     st = tp[rr.inliers].mean(axis=0)
     if np.linalg.norm(st) < 0.3:
         # inliers all round: a full or nearly full disc, whose terminator runs just inside the
@@ -328,19 +342,12 @@ def _dark_outside(image, camera, mask, threshold, rays, e, alpha, step):
     """Fraction of the inlier rays that, turned ``step`` [rad] away from e, land on a pixel below
     ``threshold`` (NaN when none lands in the image outside the mask)."""
     c, s = math.cos(alpha + step), math.sin(alpha + step)
-    tp = rays - np.outer(rays @ e, e)
-    tp /= np.linalg.norm(tp, axis=1)[:, None]
     with np.errstate(invalid="ignore"):
-        uv = project(camera, c * e[None, :] + s * tp)
-    iu, iv = np.rint(uv[:, 0]), np.rint(uv[:, 1])
-    ok = np.isfinite(iu) & np.isfinite(iv) & (iu >= 0) & (iv >= 0) & (iu < camera.width) & (iv < camera.height)
-    iu, iv = iu[ok].astype(np.int64), iv[ok].astype(np.int64)
-    if mask is not None and mask.has_mask:
-        keep = ~mask.mask[iv, iu]
-        iu, iv = iu[keep], iv[keep]
-    if iu.size == 0:
+        uv = project(camera, c * e[None, :] + s * _radial(rays, e))
+    b = _brightness_at(image, uv, mask)
+    b = b[np.isfinite(b)]
+    if b.size == 0:
         return math.nan
-    b = image[iv, iu].reshape(iu.size, -1).mean(axis=1)
     return float(np.mean(b < threshold))
 
 
@@ -396,10 +403,7 @@ def _facing(H: np.ndarray, out, d: np.ndarray):
     inside the edge gives (the inliers' mean radial direction about the centre within 90 deg of
     it), else the reason."""
     fit, inl = out
-    e = fit.e_c
-    tp = H[inl] - np.outer(H[inl] @ e, e)
-    m = (tp / np.linalg.norm(tp, axis=1)[:, None]).mean(axis=0)
-    if float(m @ d) > 0.0:
+    if float(_radial(H[inl], fit.e_c).mean(axis=0) @ d) > 0.0:
         return out
     return "the fitted lit limb faces away from the bright side inside the edge (a terminator taken for the limb)"
 

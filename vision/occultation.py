@@ -58,8 +58,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["STANDARD_DENSITY", "REFRACTIVITY_GROUND", "REFRACTION_CEILING_M", "EarthEdge", "refraction_bending", "edge_angle",
-           "clearance", "tangent_height", "occultation_reason", "refraction_covariance"]
+from nav.earth import R_MEAN
+from nav.rotation import tangent_basis
+
+__all__ = ["STANDARD_DENSITY", "REFRACTIVITY_GROUND", "REFRACTION_CEILING_M", "EarthEdge", "refraction_bending",
+           "edge_angle", "clearance", "tangent_height", "occultation_reason", "refraction_covariance"]
 
 #: U.S. Standard Atmosphere 1976: geometric height [m], density [kg/m^3]
 STANDARD_DENSITY = np.array([
@@ -72,7 +75,6 @@ _LN_DENSITY = np.log(STANDARD_DENSITY[:, 1])
 REFRACTION_CEILING_M = 60e3
 #: refractivity n - 1 of air at the ground (visible light, 15 C, 1013.25 hPa)
 REFRACTIVITY_GROUND = 2.77e-4
-_R_EARTH = 6371e3
 
 
 def refraction_bending(h_m) -> np.ndarray:
@@ -90,7 +92,7 @@ def refraction_bending(h_m) -> np.ndarray:
     i = np.clip(np.searchsorted(z, h, side="right") - 1, 0, z.size - 2)
     slope = (rho[i + 1] - rho[i]) / (z[i + 1] - z[i])        # -1 / H of the layer
     ln_rho = rho[i] + slope * (h - z[i])
-    return REFRACTIVITY_GROUND * np.exp(ln_rho - rho[0]) * np.sqrt(2.0 * math.pi * _R_EARTH * -slope)
+    return REFRACTIVITY_GROUND * np.exp(ln_rho - rho[0]) * np.sqrt(2.0 * math.pi * R_MEAN * -slope)
 
 
 @dataclass(frozen=True)
@@ -117,14 +119,18 @@ class EarthEdge:
 
     def __post_init__(self):
         e = np.asarray(self.e_c, dtype=float)
-        a = np.array([1.0, 0.0, 0.0]) if abs(e[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        u = a - (a @ e) * e
-        u /= math.sqrt(float(u @ u))
-        w = np.array([e[1] * u[2] - e[2] * u[1], e[2] * u[0] - e[0] * u[2], e[0] * u[1] - e[1] * u[0]])
+        basis = tangent_basis(e).T                       # rows t1, t2
         rays = np.asarray(self.rays, dtype=float)
-        object.__setattr__(self, "basis", np.stack([u, w]))
+        xy = rays @ basis.T
+        object.__setattr__(self, "basis", basis)
         object.__setattr__(self, "theta", np.arccos(np.clip(rays @ e, -1.0, 1.0)))
-        object.__setattr__(self, "azimuth", np.arctan2(rays @ w, rays @ u))
+        object.__setattr__(self, "azimuth", np.arctan2(xy[:, 1], xy[:, 0]))
+
+    def height(self, sigmas: float = 0.0) -> float:
+        """The edge's tangent height [m] less ``sigmas`` of its sigmas (0 m when not finite; a
+        sigma that is not finite is not taken off)."""
+        h = self.height_m if math.isfinite(self.height_m) else 0.0
+        return h - sigmas * self.height_sigma_m if math.isfinite(self.height_sigma_m) else h
 
 
 def edge_angle(edge: EarthEdge, b_c: np.ndarray, n_near: int = 16) -> float:
@@ -170,7 +176,7 @@ def occultation_reason(edge: EarthEdge, b_c: np.ndarray, alpha_b: float, min_cle
              f"(min_clearance_deg {math.degrees(min_clearance):g})")
     if c + 2.0 * alpha_b >= 0.0:
         return f"reaches into the Earth's edge (partly hidden behind it, seen through its air): {below}"
-    h_e = edge.height_m if math.isfinite(edge.height_m) else 0.0
+    h_e = edge.height()
     h_top = tangent_height(edge.r_m, h_e, theta_e + c + 2.0 * alpha_b, theta_e)
     if h_top <= 0.0:
         return f"inside the Earth's disc, not the {body} (it is never in front of the Earth): {below}"
@@ -190,10 +196,7 @@ def refraction_covariance(edge: EarthEdge, b_c: np.ndarray, rays: np.ndarray, ed
     if not math.isfinite(theta_e) or len(rays) == 0:
         return np.zeros((3, 3))
     theta_low = float(np.min(np.arccos(np.clip(np.asarray(rays, dtype=float) @ e, -1.0, 1.0))))
-    h_e = edge.height_m if math.isfinite(edge.height_m) else 0.0
-    if math.isfinite(edge.height_sigma_m):
-        h_e -= edge_sigmas * edge.height_sigma_m
-    h_low = tangent_height(edge.r_m, max(0.0, h_e), max(theta_low, theta_e), theta_e)
+    h_low = tangent_height(edge.r_m, max(0.0, edge.height(edge_sigmas)), max(theta_low, theta_e), theta_e)
     u = e - (e @ b) * b                          # towards the Earth along the great circle through b
     n = float(np.linalg.norm(u))
     if n == 0.0:
