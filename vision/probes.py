@@ -72,6 +72,18 @@ def _probe_brightness(img, mask, u, v):
     return acc / nc
 
 
+@numba.njit(cache=True, inline="always")
+def _towards(px, py, pz, e):
+    """Unit tangent ``t = (e - (p.e) p) / |...|`` at the ray p towards e, and its norm before
+    normalising (0 when p is along e)."""
+    d = px * e[0] + py * e[1] + pz * e[2]
+    tx, ty, tz = e[0] - d * px, e[1] - d * py, e[2] - d * pz
+    tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if not tn > 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    return tx / tn, ty / tn, tz / tn, tn
+
+
 @numba.njit(cache=True)
 def _side_kernel(img, mask, threshold, rays, e, ang, alpha, model, prm):
     """Probes of `side_score`: each ray turned by ang_j towards e and away from it (tangent
@@ -83,15 +95,13 @@ def _side_kernel(img, mask, threshold, rays, e, ang, alpha, model, prm):
     for sign in (1.0, -1.0):
         for j in range(rays.shape[0]):
             px, py, pz = rays[j, 0], rays[j, 1], rays[j, 2]
-            d = px * e[0] + py * e[1] + pz * e[2]
-            tx, ty, tz = e[0] - d * px, e[1] - d * py, e[2] - d * pz
-            tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+            tx, ty, tz, tn = _towards(px, py, pz, e)
             if not tn > 1e-9:
                 continue
             ca, sa = math.cos(ang[j]), sign * math.sin(ang[j])
-            qx = ca * px + sa * (tx / tn)
-            qy = ca * py + sa * (ty / tn)
-            qz = ca * pz + sa * (tz / tn)
+            qx = ca * px + sa * tx
+            qy = ca * py + sa * ty
+            qz = ca * pz + sa * tz
             u, v = project1(qx, qy, qz, model, prm)
             b = _probe_brightness(img, mask, u, v)
             if b < 0.0:
@@ -116,9 +126,7 @@ def _inward_kernel(img, mask, level, rays, e, ang, depth, model, prm):
     usable = 0
     for j in range(rays.shape[0]):
         px, py, pz = rays[j, 0], rays[j, 1], rays[j, 2]
-        d = px * e[0] + py * e[1] + pz * e[2]
-        tx, ty, tz = e[0] - d * px, e[1] - d * py, e[2] - d * pz
-        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz, tn = _towards(px, py, pz, e)
         if not (tn > 1e-9 and ang[j] > 0.0):
             continue
         n_seen = 0
@@ -126,7 +134,7 @@ def _inward_kernel(img, mask, level, rays, e, ang, depth, model, prm):
         k = 2
         while k * ang[j] <= depth:
             ca, sa = math.cos(k * ang[j]), math.sin(k * ang[j])
-            u, v = project1(ca * px + sa * tx / tn, ca * py + sa * ty / tn, ca * pz + sa * tz / tn, model, prm)
+            u, v = project1(ca * px + sa * tx, ca * py + sa * ty, ca * pz + sa * tz, model, prm)
             b = _probe_brightness(img, mask, u, v)
             k += 1
             if b < 0.0:
