@@ -24,8 +24,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
+# The suite's files spread over JOBS processes (pytest-xdist; a file's tests stay together, so a
+# module's fixtures are built once): the suite is one process's work per file, and CI has 2 cores.
+JOBS ?= 2
 test: $(STAMP) bytecode
-	$(BIN)/python -m pytest -q tests --ignore=tests/benchmarks
+	$(BIN)/python -m pytest -q tests --ignore=tests/benchmarks -n $(JOBS) --dist loadfile
 
 demo: $(STAMP) bytecode
 	$(BIN)/horizon-nav demo
