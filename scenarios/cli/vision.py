@@ -50,6 +50,9 @@ def add_arguments(p) -> None:
     p.add_argument("--mask", default=None, help="payload mask image (non-zero = ignored), the camera's size")
     p.add_argument("--annotate", default=None, metavar="DIR", help="write annotated PNGs into DIR")
     p.add_argument("--json", action="store_true", help="print JSON, one object per image and line")
+    p.add_argument("--bit-depth", type=int, default=None, metavar="BITS",
+                   help="significant bits of 16-bit images (9-16, the camera's ADC depth); default: per image, the "
+                        "smallest of 10/12/14/16 that holds its largest value (a dark image may then be brightened)")
     p.add_argument("--seed", type=int, default=0,
                    help="RANSAC seed (default 0); each image's generator is seeded by it and the image's file name, "
                         "so an image gives the same result alone or in any batch")
@@ -208,6 +211,8 @@ def _check_cli(args):
     """--height/--lat checked; returns the latitude [rad] or None."""
     if args.height is not None and not (math.isfinite(args.height) and 0 < args.height < 5e7):
         raise UserError(f"--height {args.height}: expected the height above the ellipsoid in metres (> 0)")
+    if args.bit_depth is not None and not 9 <= args.bit_depth <= 16:
+        raise UserError(f"--bit-depth {args.bit_depth}: expected the 16-bit images' significant bits, 9..16")
     if args.lat is None:
         return None
     if not -90.0 <= args.lat <= 90.0:
@@ -226,13 +231,14 @@ def _read_image(path: Path, args, cam):
         raise UserError(f"{path}: image file not found")
     data = np.fromfile(path, dtype=np.uint8)
     try:
-        img, bits = decode_image(data.tobytes(), str(path)) if data.size else (None, 0)
+        img, bits = decode_image(data.tobytes(), str(path), args.bit_depth) if data.size else (None, 0)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     if img is None:
         raise UserError(f"{path}: not an image OpenCV can decode (expected JPEG, PNG, ...)")
     if bits > 8:
-        print(f"{path}: 16-bit image, {bits} significant bits, scaled to 8 bits", file=sys.stderr)
+        how = "given by --bit-depth" if args.bit_depth else "from its largest value"
+        print(f"{path}: 16-bit image, {bits} significant bits ({how}), scaled to 8 bits", file=sys.stderr)
     if img.shape[:2] != (cam.height, cam.width):
         raise UserError(f"{path}: size {img.shape[1]}x{img.shape[0]}, but camera file {args.camera} "
                         f"is {cam.width}x{cam.height}")

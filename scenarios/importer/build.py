@@ -215,4 +215,10 @@ def import_flight(mapping: Mapping | str | Path, output: str | Path, *, keep_par
                 else " (nothing written; keep_partial=True keeps what was imported before the error)")
         raise UserError(f"{exc}{tail}") from None
     prep.timings["write_s"] = time.perf_counter() - t
+    notes = [(f"camera_{fp.k}", *n) for fp in prep.footages if (n := fp.depth_note()) is not None]
+    for stream, level, msg in notes:   # known only once the frames are read
+        prep.report.add(level, stream, "bit_depth", msg)
+    if notes and report_dir is not None:
+        from scenarios.atomic import atomic_write_text
+        atomic_write_text(Path(report_dir) / "report.json", prep.report.to_json())
     return ImportResult(output, prep, counts, prep.timings)

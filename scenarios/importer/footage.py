@@ -75,23 +75,23 @@ def check_jpeg(b: bytes, width: int, height: int, what: str, decode: bool) -> No
             raise UserError(f"{what}: corrupted JPEG (cannot be decoded)")
 
 
-def encode_jpeg(img: np.ndarray, quality: int, what: str) -> bytes:
-    """The frame as JPEG bytes; 16-bit frames scaled to 8 bits by their significant bits
-    (`scenarios.flightlog.jpeg.to_8bit`)."""
+def encode_jpeg(img: np.ndarray, quality: int, what: str, bits: int | None = None) -> tuple[bytes, int]:
+    """(JPEG bytes, the source's significant bits) of a frame; 16-bit frames scaled to 8 bits by
+    ``bits``, or by their own largest value when None (`scenarios.flightlog.jpeg.to_8bit`)."""
     import cv2
 
     from scenarios.flightlog.jpeg import to_8bit
 
     try:
-        img, _ = to_8bit(img, what)
+        img, depth = to_8bit(img, what, bits)
     except ValueError as exc:
-        raise UserError(str(exc)) from None
+        raise UserError(f"{exc}: check the footage's 'bit_depth'" if bits else str(exc)) from None
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, :3]
     ok, buf = cv2.imencode(".jpg", img, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
     if not ok:
         raise UserError(f"{what}: JPEG encoding failed")
-    return buf.tobytes()
+    return buf.tobytes(), depth
 
 
 @dataclass
@@ -108,6 +108,29 @@ class Footage:
     notes: list[str] = field(default_factory=list)
     passed_through: int = 0
     encoded: int = 0
+    depths: dict = field(default_factory=dict)  # significant bits -> count of 16-bit frames scaled by them
+
+    def _encode(self, img: np.ndarray, what: str) -> bytes:
+        b, bits = encode_jpeg(img, self.spec.jpeg_quality, what, self.spec.bit_depth)
+        self.encoded += 1
+        if bits > 8:
+            self.depths[bits] = self.depths.get(bits, 0) + 1
+        return b
+
+    def depth_note(self) -> tuple[str, str] | None:
+        """(level, message) on how 16-bit frames were scaled, None without any: a warning when
+        frames were scaled by different depths (their brightness then differs by the ratio)."""
+        if not self.depths:
+            return None
+        said = ", ".join(f"{b} bits on {n}" for b, n in sorted(self.depths.items()))
+        if self.spec.bit_depth is not None:
+            return "info", f"16-bit frames scaled as {self.spec.bit_depth}-bit data (bit_depth): {said}"
+        if len(self.depths) == 1:
+            return "info", f"16-bit frames scaled by their largest values: {said}"
+        top = max(self.depths)
+        return "warning", (f"16-bit frames scaled by their own largest values, unevenly: {said} (a frame "
+                           f"read as fewer bits is brightened); give the camera's depth, e.g. bit_depth = "
+                           f"{top}, in the footage to scale them alike")
 
     @property
     def what(self) -> str:
@@ -139,8 +162,7 @@ class Footage:
             if img.shape[:2] != (self.height, self.width):
                 raise UserError(f"{what}: image is {img.shape[1]}x{img.shape[0]} px but the camera file says "
                                 f"{self.width}x{self.height}")
-            self.encoded += 1
-            yield t, encode_jpeg(img, self.spec.jpeg_quality, what)
+            yield t, self._encode(img, what)
 
     def _video_frames(self):
         import cv2
@@ -163,8 +185,7 @@ class Footage:
                     if img.shape[:2] != (self.height, self.width):
                         raise UserError(f"{what}: frame is {img.shape[1]}x{img.shape[0]} px but the camera "
                                         f"file says {self.width}x{self.height}")
-                    self.encoded += 1
-                    yield want[i], encode_jpeg(img, self.spec.jpeg_quality, what)
+                    yield want[i], self._encode(img, what)
                 i += 1
         finally:
             cap.release()

@@ -169,6 +169,7 @@ class FootageSpec:
     pattern: str = "*"
     jpeg_quality: int = 95
     verify: bool = True
+    bit_depth: int | None = None   #: significant bits of 16-bit frames; None: each frame's own (`to_8bit`)
 
 
 @dataclass(frozen=True)
@@ -501,7 +502,8 @@ def _start(ctx, d, where, liftoff_ns) -> int | None:
 
 def parse_footage(ctx: _Ctx, d: Any, where: str, liftoff_ns: int) -> FootageSpec:
     d = _table(ctx, d, where, {"video", "images", "timestamps", "filename_regex", "filename_time", "start_utc",
-                               "start_s", "rate_hz", "duration_s", "frames", "pattern", "jpeg_quality", "verify"})
+                               "start_s", "rate_hz", "duration_s", "frames", "pattern", "jpeg_quality", "verify",
+                               "bit_depth"})
     if ("video" in d) == ("images" in d):
         raise ctx.err(where, "give exactly one of 'video' (a video file) or 'images' (a folder of images)")
     kind = "video" if "video" in d else "images"
@@ -552,9 +554,13 @@ def parse_footage(ctx: _Ctx, d: Any, where: str, liftoff_ns: int) -> FootageSpec
     verify = d.get("verify", True)
     if not isinstance(verify, bool):
         raise ctx.err(where, f"key 'verify' = {verify!r}; expected true or false")
+    bits = d.get("bit_depth")
+    if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int) or not 9 <= bits <= 16):
+        raise ctx.err(where, f"key 'bit_depth' = {bits!r}; expected the 16-bit frames' significant bits, "
+                             "an integer 9..16")
     return FootageSpec(kind, path, ts, fcol, frcol, regex, ftime, start, rate,
                        _num(ctx, d, "duration_s", where, positive=True), frames,
-                       _str(ctx, d, "pattern", where, default="*"), q, verify)
+                       _str(ctx, d, "pattern", where, default="*"), q, verify, bits)
 
 
 def parse_mount(ctx: _Ctx, d: Any, where: str) -> np.ndarray:

@@ -36,6 +36,7 @@ import numpy as np
 
 from nav import earth
 from nav.timescales import format_utc
+from scenarios.atomic import atomic_output, atomic_write_text
 
 from .mapping import Checks
 from .units import G0
@@ -358,8 +359,7 @@ def save_report(report: Report, out_dir: Path, imu=None, gps=None, footages=()) 
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    js = out_dir / "report.json"
-    js.write_text(report.to_json())
+    js = atomic_write_text(out_dir / "report.json", report.to_json())
     fig, ax = plt.subplots(4, 1, figsize=(11, 11), sharex=True)
     t0 = report.liftoff_ns
     if imu is not None and len(imu.t_ns):
@@ -395,8 +395,7 @@ def save_report(report: Report, out_dir: Path, imu=None, gps=None, footages=()) 
             ax[0].set_title(f"{len(report.errors)} error(s), {len(report.warnings)} warning(s): see report.json",
                             color="red" if report.errors else "darkorange")
     fig.tight_layout()
-    png = out_dir / "report.png"
-    fig.savefig(png, dpi=90)
+    png = atomic_output(out_dir / "report.png", lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
     plt.close(fig)
     return js, png
 
