@@ -41,13 +41,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nav.ephemeris import SUN_RADIUS
 from vision.error_model import HORIZON_NOISE, SUN_NOISE, T_C, bloomed_alpha, draw_vector_errors, predict_vision
 
-__all__ = ["TruthVectors", "SUN_RADIUS_M", "DEFAULT_SUN_BLOOM", "camera_truth_vectors", "flight_truth_vectors",
+__all__ = ["TruthVectors", "DEFAULT_SUN_BLOOM", "camera_truth_vectors", "flight_truth_vectors",
            "log_truth_vectors", "LOG_TO_NAV_TARGET"]
 
-#: Solar radius [m] (IAU 2015 nominal), for the Sun's apparent radius.
-SUN_RADIUS_M = 6.957e8
 #: Bloom factor of the Sun disc in the rendered images: the vision front end's Sun fits report an
 #: apparent radius of about twice the geometric 0.27 deg (003 §5; the default
 #: `vision.config.VisionConfig` accepts Sun radii of 0.2-4.0 deg).
@@ -159,7 +158,7 @@ def camera_truth_vectors(camera, k: int, t_ns, nadir_c, sun_c, alpha_earth, hori
             if target == "earth":
                 alpha, method = float(alpha_earth[i]), "constrained"
             else:
-                alpha, method = bloomed_alpha(math.asin(SUN_RADIUS_M / dist[i]), sun_bloom), "free-alpha"
+                alpha, method = bloomed_alpha(math.asin(SUN_RADIUS / dist[i]), sun_bloom), "free-alpha"
             pred = predict_vision(camera, vecs[i], alpha, noise[0], noise[1], mask=mask, step_px=step_px,
                                   method=method, min_pixels=max(1, int(round(min_pixels / step_px))))
             if pred.covariance is None:

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nav.ephemeris import sun_position_e
+from nav.ephemeris import SUN_RADIUS, sun_position_e
 from nav.navigator import GpsData, ImuData, InitialState, VectorData, run
 from nav.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix, tangent_bases
 from scenarios.sim import simulate as S
@@ -46,7 +46,6 @@ from vision.error_model import HORIZON_NOISE, SUN_NOISE, bloomed_alpha, draw_vec
 
 VECTOR_STREAM, INIT_STREAM, WHITE_STREAM = 300, 400, 500
 TARGETS = ("hor", "sun")
-SUN_RADIUS_M = 6.957e8  #: nominal solar radius (IAU 2015 B3)
 
 _TRUTH: dict = {}
 _COV: dict = {}
@@ -98,7 +97,7 @@ def _nominal_covariances(sc, truth, ci: int, cam_cfg, cam_truth_nominal, cam_mod
             else:
                 x = truth.x_e[int(round(ct.t[i] / truth.dt))]
                 dist = np.linalg.norm(sun_position_e(truth.liftoff_ns + int(round(ct.t[i] * 1e9))) - x)
-                a = bloomed_alpha(math.asin(SUN_RADIUS_M / dist), rc.sun_bloom)
+                a = bloomed_alpha(math.asin(SUN_RADIUS / dist), rc.sun_bloom)
                 pred = predict_vision(cam_model, vec[i], a, *SUN_NOISE, method="free-alpha",
                                       min_pixels=rc.min_pixels)
             if pred.covariance is not None:
