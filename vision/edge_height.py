@@ -54,7 +54,6 @@ import numba
 import numpy as np
 
 from nav._kernels import tangent_basis as nb_tangent_basis
-from vision.covariance import _ar1_apply_2d
 from vision.nadir import _mean_sq_residual
 from vision.oblate import LimbModel
 
@@ -96,36 +95,43 @@ def _normal_3(H, J, e_fit, e_c, c, s, rho, rho_v):  # pragma: no cover - numba
     """F^T F, F^T (-r), F^T Sigma_0 F (unit pixel variance) and F^T T_v F (the along-edge
     height variation's correlation, rho_v) for F_j = [h_j^T T, s], r_j = h_j^T e - c, T the
     tangent basis at e_fit; the pixel-noise weights g_j = e_c^T J_j (camera frame: the limb
-    model's map differs from a rotation by the flattening only)."""
+    model's map differs from a rotation by the flattening only).
+
+    Both correlated forms in one pass without storing the rows: with the AR(1) correlation
+    T_jk = rho^|j-k| = (L + L^T - I)_jk, L_jk = rho^(j-k) for k <= j, X^T T X = W + W^T - X^T X
+    where W = sum_j x_j f_j^T and f_j = x_j + rho f_(j-1) (the forward recursion of
+    `vision.covariance._ar1_apply_2d`; its backward one gives W^T)."""
     m = H.shape[0]
     T = nb_tangent_basis(e_fit)
-    F = np.empty((m, 3))
-    G = np.empty((m, 6))
     M = np.zeros((3, 3))
     b = np.zeros(3)
+    S = np.zeros((3, 3))
+    V = np.zeros((3, 3))
+    P = np.zeros((3, 3))   # sum (gu^2 + gv^2) F_j F_j^T
+    Fj = np.empty(3)
+    fu = np.zeros(3)       # forward recursions of gu F_j, gv F_j (rho) and F_j (rho_v)
+    fv = np.zeros(3)
+    ff = np.zeros(3)
     for j in range(m):
-        F[j, 0] = H[j, 0] * T[0, 0] + H[j, 1] * T[1, 0] + H[j, 2] * T[2, 0]
-        F[j, 1] = H[j, 0] * T[0, 1] + H[j, 1] * T[1, 1] + H[j, 2] * T[2, 1]
-        F[j, 2] = s
+        Fj[0] = H[j, 0] * T[0, 0] + H[j, 1] * T[1, 0] + H[j, 2] * T[2, 0]
+        Fj[1] = H[j, 0] * T[0, 1] + H[j, 1] * T[1, 1] + H[j, 2] * T[2, 1]
+        Fj[2] = s
         r = H[j, 0] * e_fit[0] + H[j, 1] * e_fit[1] + H[j, 2] * e_fit[2] - c
         gu = e_c[0] * J[j, 0, 0] + e_c[1] * J[j, 1, 0] + e_c[2] * J[j, 2, 0]
         gv = e_c[0] * J[j, 0, 1] + e_c[1] * J[j, 1, 1] + e_c[2] * J[j, 2, 1]
+        g2 = gu * gu + gv * gv
         for a in range(3):
-            b[a] -= F[j, a] * r
-            G[j, a] = gu * F[j, a]
-            G[j, 3 + a] = gv * F[j, a]
-            for q in range(3):
-                M[a, q] += F[j, a] * F[j, q]
-    TG = _ar1_apply_2d(G, rho) if rho > 0.0 else G.copy()
-    TF = _ar1_apply_2d(F, rho_v) if rho_v > 0.0 else F.copy()
-    S = np.zeros((3, 3))
-    V = np.zeros((3, 3))
-    for j in range(m):
+            b[a] -= Fj[a] * r
+            fu[a] = rho * fu[a] + gu * Fj[a]
+            fv[a] = rho * fv[a] + gv * Fj[a]
+            ff[a] = rho_v * ff[a] + Fj[a]
         for a in range(3):
             for q in range(3):
-                S[a, q] += G[j, a] * TG[j, q] + G[j, 3 + a] * TG[j, 3 + q]
-                V[a, q] += F[j, a] * TF[j, q]
-    return M, b, S, V, T
+                M[a, q] += Fj[a] * Fj[q]
+                P[a, q] += g2 * Fj[a] * Fj[q]
+                S[a, q] += gu * Fj[a] * fu[q] + gv * Fj[a] * fv[q]
+                V[a, q] += Fj[a] * ff[q]
+    return M, b, S + S.T - P, V + V.T - M, T
 
 
 @numba.njit(cache=True)

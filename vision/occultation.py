@@ -60,6 +60,7 @@ import numpy as np
 
 from nav.earth import R_MEAN
 from nav.rotation import tangent_basis
+from vision.fitting import median
 
 __all__ = ["STANDARD_DENSITY", "REFRACTIVITY_GROUND", "REFRACTION_CEILING_M", "EarthEdge", "refraction_bending",
            "edge_angle", "clearance", "tangent_height", "occultation_reason", "refraction_covariance"]
@@ -142,7 +143,7 @@ def edge_angle(edge: EarthEdge, b_c: np.ndarray, n_near: int = 16) -> float:
     d = np.abs((edge.azimuth - math.atan2(y, x) + math.pi) % (2.0 * math.pi) - math.pi)
     k = min(n_near, d.size)
     near = np.argpartition(d, k - 1)[:k] if k < d.size else slice(None)
-    return float(np.median(edge.theta[near]))
+    return median(edge.theta[near])
 
 
 def clearance(edge: EarthEdge, b_c: np.ndarray, alpha_b: float) -> tuple[float, float]:
