@@ -75,7 +75,7 @@ from vision.image_geometry import conic_polyline, fast_pixel_angle, gate_search_
 from vision.limb_refit import limb_refit, tilt_corrected_attitude
 from vision.mask import PayloadMask
 from vision.nadir import angle_residuals, conic_type, direction_and_radius, within_cone
-from vision.oblate import ellipsoid_model, sphere_model
+from vision.oblate import ellipsoid_model, is_above, sphere_model
 from vision.occultation import REFRACTION_CEILING_M, EarthEdge, occultation_reason, refraction_covariance, tangent_height
 from vision.results import CandidateResult, FrameResult, TargetResult, VectorRecord
 from vision.scoring import gate_reason, score_candidate
@@ -501,14 +501,29 @@ def model_height_m(tc: TargetConfig) -> float:
 def _earth_model(config: VisionConfig, prior: FramePrior | None, height_m: float | None):
     """The Earth's limb model (`vision.oblate`, d = `model_height_m`): the ellipsoid with a
     prior giving x_e and R_ec, else the sphere at ``height_m`` of radius ``sphere_radius_m``,
-    the Gaussian radius at ``prior.lat``, or ``nav.earth.R_MEAN`` (003 §2.8)."""
-    d = model_height_m(config.earth)
-    if prior is not None and prior.x_e is not None and prior.R_ec is not None:
-        return ellipsoid_model(prior.x_e, prior.R_ec, d)
-    if height_m is None:
-        raise ValueError("height_m: required for the Earth (003 eq. (5)) without a position prior")
-    if not (math.isfinite(height_m) and height_m > 0):
-        raise ValueError(f"height_m = {height_m}; expected a finite height above the ellipsoid [m]")
+    the Gaussian radius at ``prior.lat``, or ``nav.earth.R_MEAN`` (003 §2.8). Returns
+    (config, model, reason): for a camera not above d (a balloon, a rocket's ascent) with the
+    height estimated, the model and config's ``edge.start_m`` at the first of ``atmosphere_m``
+    (the prior's mean) and 0 m below it; with no such height, model None and the reason."""
+    tc = config.earth
+    d = model_height_m(tc)
+    ellipsoid = prior is not None and prior.x_e is not None and prior.R_ec is not None
+    if not ellipsoid:
+        if height_m is None:
+            raise ValueError("height_m: required for the Earth (003 eq. (5)) without a position prior")
+        if not (math.isfinite(height_m) and height_m > 0):
+            raise ValueError(f"height_m = {height_m}; expected a finite height above the ellipsoid [m]")
+    above = (lambda h: is_above(prior.x_e, h)) if ellipsoid else (lambda h: height_m > h)
+    if not above(d):
+        lower = [h for h in (tc.atmosphere_m, 0.0) if h < d and above(h)]
+        if not (tc.edge.estimate and tc.atmosphere_sigma_m > 0 and lower):
+            return config, None, (f"the camera is not above the Earth's edge height {d / 1e3:.0f} km that its "
+                                  f"cone is built at (003 eq. (5)): no Earth cone")
+        d = lower[0]
+        config = dataclasses.replace(config, earth=dataclasses.replace(
+            tc, edge=dataclasses.replace(tc.edge, start_m=d)))
+    if ellipsoid:
+        return config, ellipsoid_model(prior.x_e, prior.R_ec, d), ""
     if config.sphere_radius_m is not None:
         r = config.sphere_radius_m
     elif prior is not None and prior.lat is not None:
@@ -516,14 +531,15 @@ def _earth_model(config: VisionConfig, prior: FramePrior | None, height_m: float
         r = gaussian_radius(prior.lat)
     else:
         from nav.earth import R_MEAN as r
-    return sphere_model(height_m, r, d)
+    return config, sphere_model(height_m, r, d), ""
 
 
 def _limb_prior(config: VisionConfig, prior: FramePrior | None, image):
     """(limb model at d = ``limb.height_m``, R_ec, x_e, Sun direction in e) for `limb_refit`, or
     None when the limb edge is off or the prior lacks x_e, R_ec or sun_c, or the frame is grey."""
     if not (config.earth.enabled and config.earth.limb.fraction > 0 and prior is not None and prior.x_e is not None
-            and prior.R_ec is not None and prior.sun_c is not None and image.ndim == 3):
+            and prior.R_ec is not None and prior.sun_c is not None and image.ndim == 3
+            and is_above(prior.x_e, config.earth.limb.height_m)):
         return None
     R_ec = np.asarray(prior.R_ec, dtype=float)
     return (ellipsoid_model(prior.x_e, R_ec, config.earth.limb.height_m), R_ec,
@@ -666,7 +682,12 @@ def process_frame(image, camera: Camera, config: VisionConfig, *, height_m: floa
     timings: dict[str, float] = {}
     reasons: dict[str, str] = {}
     targets: dict[str, TargetResult] = {}
-    model = _earth_model(config, prior, height_m) if config.earth.enabled else None
+    model = None
+    if config.earth.enabled:
+        config, model, why = _earth_model(config, prior, height_m)
+        if model is None:
+            reasons["earth"] = why
+            config = dataclasses.replace(config, earth=dataclasses.replace(config.earth, enabled=False))
     limb = _limb_prior(config, prior, image)
     hists: dict = {}
     earth = None          # the frame's Earth for the Sun's and the Moon's checks (`vision.occultation`)

@@ -35,7 +35,7 @@ import numpy as np
 from nav import earth
 from vision.nadir import norm3, horizon_alpha
 
-__all__ = ["LimbModel", "sphere_model", "ellipsoid_model", "gaussian_radius"]
+__all__ = ["LimbModel", "sphere_model", "ellipsoid_model", "gaussian_radius", "is_above"]
 
 
 @dataclass(frozen=True)
@@ -120,6 +120,20 @@ def sphere_model(height_m: float, radius_m: float, atmosphere_m: float = 0.0) ->
     return LimbModel("sphere", a, I, I, float(radius_m), rate)
 
 
+def is_above(x_e: np.ndarray, atmosphere_m: float) -> bool:
+    """Whether the position ``x_e`` [m] lies outside the WGS-84 ellipsoid inflated by
+    ``atmosphere_m`` (the condition for `ellipsoid_model`'s cone to exist).
+
+    Examples
+    --------
+    >>> is_above(np.array([earth.A + 30e3, 0.0, 0.0]), 45e3), is_above(np.array([earth.A + 30e3, 0.0, 0.0]), 10e3)
+    (False, True)
+    """
+    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
+    x = np.asarray(x_e, dtype=float)
+    return bool(math.hypot(x[0], x[1], x[2] * a / b) > a)
+
+
 def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0) -> LimbModel:
     """WGS-84 ellipsoid inflated by ``atmosphere_m`` seen from ``x_e`` with attitude prior
     ``R_ec`` (camera -> e), see the module docstring."""
@@ -130,7 +144,7 @@ def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0
     a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
     s = np.array([1.0, 1.0, a / b])
     xs = float(np.linalg.norm(s * x))
-    if not xs > a:
+    if not is_above(x, atmosphere_m):
         raise ValueError(f"ellipsoid_model: position {x} m is not above the ellipsoid + "
                          f"{atmosphere_m} m atmosphere")
     alpha = math.asin(a / xs)
