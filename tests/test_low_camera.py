@@ -85,3 +85,16 @@ def test_vision_cli_goes_on_past_a_low_image(tmp_path, low_view):
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     assert out["earth"] is not None and 0.0 <= out["earth"]["edge_height_m"] < H_LOW
+
+
+def test_vision_cli_notes_a_height_that_looks_like_km(tmp_path, low_view):
+    """A height below 1 km (``--height 30``: kilometres typed for metres) runs, and stderr says
+    the heights are in metres with the value it would be; 30 km itself gets no such note."""
+    cam, img, *_ = low_view
+    cv2.imwrite(str(tmp_path / "low.png"), img)
+    run = [sys.executable, "-m", "scenarios.cli", "vision", "--camera", CAMERA, str(tmp_path / "low.png"), "--json"]
+    p = subprocess.run(run + ["--height", "30"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert "height 30 m above the ellipsoid (heights are in metres: 30 km would be 30000)" in p.stderr
+    p = subprocess.run(run + ["--height", "30e3"], capture_output=True, text=True)
+    assert p.returncode == 0 and "heights are in metres" not in p.stderr

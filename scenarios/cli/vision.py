@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import zlib
 from pathlib import Path
 
@@ -27,6 +28,8 @@ from scenarios.errors import UserError
 
 NAME = "vision"
 HELP = "Earth-nadir / Sun / Moon direction vectors with covariance from camera images"
+#: below this height [m] a note asks whether the height was given in km (the horizon dips 1 deg at 1 km)
+LOW_HEIGHT_M = 1000.0
 
 
 def add_arguments(p) -> None:
@@ -223,8 +226,6 @@ def _check_cli(args):
 def _read_image(path: Path, args, cam):
     """The image as the front end takes it (`scenarios.flightlog.jpeg.decode_image`: 8-bit, 16-bit
     data scaled by its significant bits, said on stderr) or a one-line error."""
-    import sys
-
     from scenarios.flightlog.jpeg import decode_image
 
     if not path.is_file():
@@ -295,6 +296,9 @@ def run(args) -> int:
         if cfg.earth.enabled and h is None:
             raise UserError(f"{path}: no height for the Earth (003 eq. (5)): give --height, a height_m or "
                             f"position column in --meta, or --no-earth")
+        if cfg.earth.enabled and h < LOW_HEIGHT_M:
+            print(f"{path}: height {h:g} m above the ellipsoid (heights are in metres: {h:g} km would be "
+                  f"{h * 1e3:g}); the Earth's horizon from there is nearly flat", file=sys.stderr)
         img = _read_image(p, args, cam)
         res = process_frame(img, cam, cfg, height_m=h, mask=mask, prior=prior, rng=rng)
         attitude = None
