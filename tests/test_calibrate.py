@@ -159,3 +159,41 @@ def test_cli_writes_a_pinhole_camera_file(pinhole_boards, tmp_path):
     assert "FOV" in r.stdout and "deg horizontal" in r.stdout
     c = load_camera(out)
     assert isinstance(c, PinholeCamera) and abs(c.fx / PINHOLE_TRUTH.fx - 1) < 5e-3
+
+
+def with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """The JPEG with an EXIF APP1 segment holding only the orientation tag (0x0112), as cameras
+    write it for a view held turned (6: the stored rows are shown turned 90 deg clockwise)."""
+    import struct
+    tiff = (b"MM\x00\x2a\x00\x00\x00\x08" + struct.pack(">H", 1)
+            + struct.pack(">HHII", 0x0112, 3, 1, orientation << 16) + b"\x00\x00\x00\x00")
+    app1 = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+
+
+def test_exif_orientation_is_not_applied(boards, tmp_path):
+    """Chessboard JPEGs carrying EXIF orientation 6: `horizon-nav calibrate` describes the image
+    as stored (960x540, as `horizon-nav vision` and the replay read it; with the orientation
+    applied it was 540x960), and `horizon-nav vision` given a camera file of the turned shape
+    says why the sizes differ."""
+    cam, imgs = boards
+    paths = []
+    for k, im in imgs.items():
+        ok, buf = cv2.imencode(".jpg", im, [int(cv2.IMWRITE_JPEG_QUALITY), 95])
+        p = tmp_path / f"{k}.jpg"
+        p.write_bytes(with_exif_orientation(buf.tobytes(), 6))
+        paths.append(str(p))
+    assert cv2.imread(paths[0]).shape[:2] == (960, 540)        # what an orientation-applying reader sees
+    out = tmp_path / "cam.toml"
+    r = subprocess.run([sys.executable, "-m", "scenarios.cli", "calibrate", *paths, "--board", "9x6",
+                        "--square", "0.025", "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    c = load_camera(out)
+    assert (c.width, c.height) == (960, 540) and abs(c.fx / cam.fx - 1) < 5e-3
+    turned = tmp_path / "turned.toml"
+    turned.write_text(out.read_text().replace("width = 960", "width = 540").replace("height = 540", "height = 960")
+                      .replace(f"cx = {c.cx!r}", f"cx = {269.5!r}").replace(f"cy = {c.cy!r}", f"cy = {479.5!r}"))
+    r = subprocess.run([sys.executable, "-m", "scenarios.cli", "vision", "--camera", str(turned), paths[0],
+                        "--height", "230e3"], capture_output=True, text=True)
+    assert r.returncode == 2
+    assert "size 960x540, but camera file" in r.stderr and "is 540x960; its EXIF orientation turns it" in r.stderr

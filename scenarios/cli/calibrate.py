@@ -160,7 +160,8 @@ def run(args) -> int:
         p = Path(path)
         if not p.is_file():
             raise UserError(f"{path}: image file not found")
-        g = cv2.imdecode(np.fromfile(p, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+        # as stored, like horizon-nav vision and the replay: an EXIF orientation is not applied
+        g = cv2.imdecode(np.fromfile(p, dtype=np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
         if g is None:
             raise UserError(f"{path}: not an image OpenCV can decode")
         imgs[str(path)] = g

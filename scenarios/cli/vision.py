@@ -242,8 +242,23 @@ def _read_image(path: Path, args, cam):
         print(f"{path}: 16-bit image, {bits} significant bits ({how}), scaled to 8 bits", file=sys.stderr)
     if img.shape[:2] != (cam.height, cam.width):
         raise UserError(f"{path}: size {img.shape[1]}x{img.shape[0]}, but camera file {args.camera} "
-                        f"is {cam.width}x{cam.height}")
+                        f"is {cam.width}x{cam.height}{_orientation_hint(data, cam)}")
     return img
+
+
+def _orientation_hint(data: np.ndarray, cam) -> str:
+    """For a size error: why, when the file's EXIF orientation turns it to the camera's size (the
+    image is read as the sensor stored it, and the camera file was made from turned images)."""
+    import cv2
+
+    turned = cv2.imdecode(data, cv2.IMREAD_REDUCED_GRAYSCALE_8)
+    shown = cv2.imdecode(data, cv2.IMREAD_REDUCED_GRAYSCALE_8 | cv2.IMREAD_IGNORE_ORIENTATION)
+    if turned is None or shown is None or turned.shape == shown.shape:
+        return ""
+    if (turned.shape[0] > turned.shape[1]) != (cam.height > cam.width):
+        return ""
+    return ("; its EXIF orientation turns it to the camera file's shape, but images are read as the "
+            "sensor stored them: calibrate from the images as stored (horizon-nav calibrate does)")
 
 
 def _print_text(path, res, model_note, attitude: str | None = None) -> None:

@@ -205,7 +205,8 @@ def payload_mask_from_image(data: bytes, camera: Camera | None, where: str,
     ``"{where}: ..."`` for bytes that are not an image or an image of another size."""
     import cv2
     import numpy as np
-    m = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+    m = (cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+         if data else None)    # as stored, as the frames are read
     if m is None:
         raise UserError(f"{where}: not a readable image")
     if camera is not None and m.shape != (camera.height, camera.width):
