@@ -38,6 +38,22 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return atomic_output(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically."""
+    return atomic_output(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def atomic_savez(path: str | os.PathLike, **arrays) -> Path:
+    """``np.savez`` of ``arrays`` to exactly ``path``, atomically (given a file name, savez would
+    append ".npz" to the temporary file's)."""
+    import numpy as np
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+    return atomic_output(path, write)
+
+
 def move_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
     """Rename the finished file ``tmp`` to ``path``; a file already there is renamed aside first
     and deleted after. For large files written without fsync (the Rerun recording), where

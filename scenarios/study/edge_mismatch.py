@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios.atomic import atomic_output, atomic_write_text
+from scenarios.atomic import atomic_savez, atomic_write_bytes, atomic_write_text
 
 __all__ = ["CACHE_VERSION", "default_cache", "NOMINAL_EDGE_M", "HEIGHTS_M", "PROFILES", "Case", "FrameOutcome", "atek_frames", "run_case",
            "summarise", "run_study", "main"]
@@ -141,15 +141,9 @@ def _render(case: Case, cam, r, k: int, cache: Path):
                                  options=opts, omega_c=r.omega_c, cloud_seed=0)
         # npz before jpg, each renamed into place: a found jpg means both are whole, also
         # while another process (pytest-xdist's other worker) renders the same frame
-        atomic_output(npz, lambda tmp: _save_npz(tmp, e_c_earth=fr.e_c_earth))
-        atomic_output(jpg, lambda tmp: Path(tmp).write_bytes(render.encode_jpeg(fr.image, opts.jpeg_quality)))
+        atomic_savez(npz, e_c_earth=fr.e_c_earth)
+        atomic_write_bytes(jpg, render.encode_jpeg(fr.image, opts.jpeg_quality))
     return jpg.read_bytes(), np.load(npz)["e_c_earth"]
-
-
-def _save_npz(path: str, **arrays) -> None:
-    """``np.savez`` to exactly ``path`` (given a name, savez appends ".npz")."""
-    with open(path, "wb") as f:
-        np.savez(f, **arrays)
 
 
 def _edge_truth(tr, cam, r, shift_sun_m: float) -> float:

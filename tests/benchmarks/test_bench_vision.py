@@ -24,6 +24,7 @@ import numpy as np
 
 from nav import ephemeris
 from scenarios.sim import render
+from scenarios.atomic import atomic_savez, atomic_write_bytes
 from scenarios.flightlog.jpeg import decode_frame
 from scenarios.config.vision import load_vision_config
 from scenarios.study.edge_mismatch import NOMINAL_EDGE_M
@@ -85,9 +86,10 @@ def _frames(look: str, times, fl, recs):
                 fr = render.render_frame(cam, _pose(look, r), r.x_e, ephemeris.sun_position_e(r.t_ns),
                                          ephemeris.moon_position_e(r.t_ns), seed=render._frame_seed(0, k, r.t_ns),
                                          options=opts, omega_c=r.omega_c, cloud_seed=0)
-                key.with_suffix(".jpg").write_bytes(render.encode_jpeg(fr.image, opts.jpeg_quality))
-                np.savez(key.with_suffix(".npz"), e_c_earth=fr.e_c_earth, e_c_sun=fr.e_c_sun,
-                         sun_visible=fr.sun_visible, height_m=fr.height_m)
+                # npz then jpg, each renamed into place: an interrupted run leaves no half frame
+                atomic_savez(key.with_suffix(".npz"), e_c_earth=fr.e_c_earth, e_c_sun=fr.e_c_sun,
+                             sun_visible=fr.sun_visible, height_m=fr.height_m)
+                atomic_write_bytes(key.with_suffix(".jpg"), render.encode_jpeg(fr.image, opts.jpeg_quality))
             tr = dict(np.load(key.with_suffix(".npz")))
             yield r, key.with_suffix(".jpg").read_bytes(), tr
 
