@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from nav.timescales import format_utc
-from scenarios.atomic import atomic_output, atomic_write_text
+from scenarios.atomic import atomic_output, atomic_write_bytes, atomic_write_text
 from scenarios.config.camera import save_camera
 from scenarios.errors import UserError
 from scenarios.flightlog.reader import read_log
@@ -186,7 +186,7 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
         pm = log.other.get(f"/camera_{k}/payload_mask")
         if pm is not None and len(pm[0]):
             mfile = out / f"camera_{k}_mask.png"
-            mfile.write_bytes(pm[1][0])          # the log's PNG as it is
+            atomic_write_bytes(mfile, pm[1][0])          # the log's PNG as it is
             res.files[f"camera_{k}_mask"] = mfile
             common.append(f'payload_mask = "camera_{k}_mask.png"')
         ims = c.images
@@ -201,7 +201,7 @@ def export_log(log_path: str | Path, out_dir: str | Path, *, images: bool = True
             d.mkdir(exist_ok=True)
             names = [f"frame_{i:06d}.jpg" for i in range(len(t))]
             for nm, b in zip(names, ims):
-                (d / nm).write_bytes(b)
+                atomic_write_bytes(d / nm, b)
             _write_csv(d / "timestamps.csv", {"file": names, "t_utc_ns": t})
             res.files[f"camera_{k}_images"] = d
             cam_img.append("\n".join(common + [
