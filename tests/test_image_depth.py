@@ -106,7 +106,7 @@ def _depth_footage(tmp_path, bit_depth: str):
         cv2.imwrite(str(tmp_path / "img" / f"f{i}.png"), f)
     m = _camera_mapping(tmp_path, f'images = "img"\nstart_s = 0.5\nrate_hz = 1.0\n{bit_depth}')
     try:
-        return import_flight(m, tmp_path / "o.mcap"), frames[0]
+        return import_flight(m, tmp_path / "o.mcap", report_dir=tmp_path / "report"), frames[0]
     except UserError as exc:
         return exc, frames[0]
 
@@ -118,12 +118,14 @@ def _bit_depth_finding(res):
 def test_import_warns_of_frames_scaled_by_different_depths(tmp_path):
     """Without ``bit_depth`` each 16-bit frame is scaled by its own largest value: the dark frame
     as 10-bit data (4x brighter than its siblings' scale), and the report warns, naming the key
-    and the depth to give."""
+    and the depth to give, in the report directory's report.json as well."""
     from scenarios.flightlog.reader import read_log
 
     res, dark = _depth_footage(tmp_path, "")
     (f,) = _bit_depth_finding(res)
     assert f.level == "warning" and "10 bits on 1, 12 bits on 2" in f.message and "bit_depth = 12" in f.message
+    saved = json.loads((tmp_path / "report" / "report.json").read_text())     # --report's file has it too
+    assert "bit_depth = 12" in json.dumps(saved) and (tmp_path / "report" / "report.png").is_file()
     back = cv2.imdecode(np.frombuffer(read_log(tmp_path / "o.mcap").cameras[1].images[0], np.uint8), cv2.IMREAD_GRAYSCALE)
     assert abs(float(back.mean()) - dark.mean() * 255 / 1023) < 1.0      # JPEG 95 on a smooth ramp: < 1 count
 

@@ -120,6 +120,14 @@ def sphere_model(height_m: float, radius_m: float, atmosphere_m: float = 0.0) ->
     return LimbModel("sphere", a, I, I, float(radius_m), rate)
 
 
+def _inflated(x_e: np.ndarray, atmosphere_m: float) -> tuple[float, float, np.ndarray]:
+    """(|S x_e|, a, S): the distance of ``x_e`` in the frame S = diag(1, 1, a/b) that makes the
+    WGS-84 ellipsoid inflated by ``atmosphere_m`` the sphere of radius a = A + atmosphere_m."""
+    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
+    s = np.array([1.0, 1.0, a / b])
+    return float(np.linalg.norm(s * np.asarray(x_e, dtype=float))), a, s
+
+
 def is_above(x_e: np.ndarray, atmosphere_m: float) -> bool:
     """Whether the position ``x_e`` [m] lies outside the WGS-84 ellipsoid inflated by
     ``atmosphere_m`` (the condition for `ellipsoid_model`'s cone to exist).
@@ -129,9 +137,8 @@ def is_above(x_e: np.ndarray, atmosphere_m: float) -> bool:
     >>> is_above(np.array([earth.A + 30e3, 0.0, 0.0]), 45e3), is_above(np.array([earth.A + 30e3, 0.0, 0.0]), 10e3)
     (False, True)
     """
-    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
-    x = np.asarray(x_e, dtype=float)
-    return bool(math.hypot(x[0], x[1], x[2] * a / b) > a)
+    xs, a, _ = _inflated(x_e, atmosphere_m)
+    return xs > a
 
 
 def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0) -> LimbModel:
@@ -141,10 +148,8 @@ def ellipsoid_model(x_e: np.ndarray, R_ec: np.ndarray, atmosphere_m: float = 0.0
     R = np.asarray(R_ec, dtype=float)
     if x.shape != (3,) or R.shape != (3, 3) or not (np.isfinite(x).all() and np.isfinite(R).all()):
         raise ValueError(f"ellipsoid_model: x_e {x.shape}, R_ec {R.shape}; expected finite (3,), (3, 3)")
-    a, b = earth.A + atmosphere_m, earth.B + atmosphere_m
-    s = np.array([1.0, 1.0, a / b])
-    xs = float(np.linalg.norm(s * x))
-    if not is_above(x, atmosphere_m):
+    xs, a, s = _inflated(x, atmosphere_m)
+    if not xs > a:
         raise ValueError(f"ellipsoid_model: position {x} m is not above the ellipsoid + "
                          f"{atmosphere_m} m atmosphere")
     alpha = math.asin(a / xs)

@@ -218,7 +218,7 @@ def import_flight(mapping: Mapping | str | Path, output: str | Path, *, keep_par
     notes = [(f"camera_{fp.k}", *n) for fp in prep.footages if (n := fp.depth_note()) is not None]
     for stream, level, msg in notes:   # known only once the frames are read
         prep.report.add(level, stream, "bit_depth", msg)
-    if notes and report_dir is not None:
-        from scenarios.atomic import atomic_write_text
-        atomic_write_text(Path(report_dir) / "report.json", prep.report.to_json())
+    if notes and report_dir is not None:     # again, with the notes (report.png counts the warnings)
+        from .validate import save_report
+        save_report(prep.report, Path(report_dir), prep.imu, prep.gps, prep.footages)
     return ImportResult(output, prep, counts, prep.timings)
